@@ -1,0 +1,100 @@
+"""Command line: a thin layer that parses arguments and calls library functions.
+
+Exit codes: 0 success; 2 bad input or config (one line naming the file,
+field or record, no traceback); 1 internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .errors import TrackfusionError
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulation.scenarios import simulate_to_dir
+
+    result = simulate_to_dir(args.scenario, args.out, seed=args.seed, ideal=args.ideal,
+                             overrides=args.set or [], progress=_progress)
+    print(result.format())
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from .sensors.mcap_log import inspect_log
+
+    print(inspect_log(args.log).format())
+    return 0
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluation.api import evaluate_files
+    from .sensors.fileio import write_json_atomic
+
+    result = evaluate_files(args.estimate, args.reference, match=args.match)
+    print(result.format_table())
+    if args.json:
+        write_json_atomic(args.json, result.to_json())
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from .demo import run_demo
+
+    run_demo(args.out, progress=_progress)
+    return 0
+
+
+def _progress(message: str) -> None:
+    """Progress lines go to stderr so stdout stays machine-readable."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``trackfusion`` argument parser."""
+    p = argparse.ArgumentParser(prog="trackfusion", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="simulate a survey scenario into a folder")
+    s.add_argument("scenario", help="scenario name (see 'trackfusion simulate --list')" )
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bytes)")
+    s.add_argument("--ideal", action="store_true", help="turn every sensor error off")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario parameter (dotted key), repeatable")
+    s.set_defaults(func=_cmd_simulate)
+
+    s = sub.add_parser("inspect", help="summarise a raw MCAP log")
+    s.add_argument("log")
+    s.set_defaults(func=_cmd_inspect)
+
+    s = sub.add_parser("evaluate", help="relative accuracy of a trajectory against a reference")
+    s.add_argument("estimate")
+    s.add_argument("reference")
+    s.add_argument("--json", help="write the figures as JSON to this file")
+    s.add_argument("--match", choices=["time", "chainage"], default="time",
+                   help="match estimate and reference by time (default) or chainage")
+    s.set_defaults(func=_cmd_evaluate)
+
+    s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end")
+    s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    s.set_defaults(func=_cmd_demo)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``trackfusion`` command; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except TrackfusionError as exc:
+        print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("trackfusion: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

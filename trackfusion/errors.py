@@ -1,0 +1,45 @@
+"""Error hierarchy of trackfusion.
+
+Every error the toolkit raises on purpose derives from :class:`TrackfusionError`.
+The command line turns any of them into exit code 2 and one line naming the
+file, field or record at fault (``str(error)``); anything else is an internal
+error (exit code 1).
+"""
+
+from __future__ import annotations
+
+
+class TrackfusionError(Exception):
+    """Root of every deliberate trackfusion error (bad input, bad config, ...)."""
+
+
+class GeodesyError(TrackfusionError):
+    """Invalid geodetic input (latitude out of range, non-finite coordinate, ...)."""
+
+
+class SensorDataError(TrackfusionError):
+    """A sensor log or data file is unreadable or holds an invalid record."""
+
+
+class ConfigError(TrackfusionError):
+    """A pipeline, scenario or alignment configuration is invalid."""
+
+
+class FusionError(TrackfusionError):
+    """The factor-graph smoother cannot proceed with the given data."""
+
+
+class RegistrationError(TrackfusionError):
+    """Time synchronisation or station registration failed."""
+
+
+class TrackGeometryError(TrackfusionError):
+    """Track alignment or geometry computation got invalid input."""
+
+
+class EvaluationError(TrackfusionError):
+    """Evaluation input is invalid (empty, missing column, no overlap, ...)."""
+
+
+class SimulationError(TrackfusionError):
+    """A simulation scenario cannot be built as requested."""

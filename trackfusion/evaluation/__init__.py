@@ -1,0 +1,1 @@
+"""Evaluation: relative accuracy over distance scales (seed 002), repeatability, overlap statistics."""

@@ -1,0 +1,1 @@
+"""Fusion: factor-graph smoother (IMU preintegration, odometer, NHC, ZUPT, GNSS, prisms)."""

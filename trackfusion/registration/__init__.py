@@ -1,0 +1,1 @@
+"""Registration: total-station polar observations, time synchronisation, multi-station registration."""

@@ -1,0 +1,1 @@
+"""Report: plots and the self-contained HTML report."""

@@ -1,0 +1,119 @@
+"""Atomic file output and CSV tables with JSON sidecars.
+
+Every output file is written to a temporary name in the same folder and
+renamed into place only once complete, so a failed run never leaves a partial
+file behind. A CSV table ``name.csv`` always has a sidecar ``name.json`` with
+``{"frame", "origin": {"lat_deg", "lon_deg", "h_m"}, "columns": {name: unit}}``
+plus any extra keys the writer passes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator, Mapping
+
+import numpy as np
+
+from ..errors import SensorDataError
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it to ``path`` on success, delete it on error."""
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, final)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_json_atomic(path: str | os.PathLike, obj) -> None:
+    """Write ``obj`` as indented JSON to ``path`` atomically (keys kept in insertion order)."""
+    write_text_atomic(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def sidecar_path(csv_path: str | os.PathLike) -> Path:
+    """``foo.csv`` -> ``foo.json``."""
+    return Path(csv_path).with_suffix(".json")
+
+
+def write_csv_table(path: str | os.PathLike, columns: Mapping[str, np.ndarray], units: Mapping[str, str],
+                    frame: str, origin: Mapping[str, float], extra: Mapping | None = None,
+                    fmt: str = "%.10g") -> None:
+    """Write a CSV table and its JSON sidecar, both atomically.
+
+    columns: name -> 1-D array, all of one length N (written in the given order).
+    units: name -> unit string for every column. frame: frame name (e.g. ``"n"``).
+    origin: ``{"lat_deg", "lon_deg", "h_m"}`` of the frame. extra: more sidecar keys.
+    fmt: printf format of the values (the default keeps 10 significant digits;
+    pass ``"%.17g"`` for a bit-exact round trip).
+    """
+    names = list(columns)
+    missing = [c for c in names if c not in units]
+    if missing:
+        raise ValueError(f"no unit for columns {missing}")
+    data = np.column_stack([np.asarray(columns[c], dtype=float) for c in names])
+    buf = io.StringIO()
+    np.savetxt(buf, data, delimiter=",", header=",".join(names), comments="", fmt=fmt)
+    sidecar = {"frame": frame, "origin": dict(origin), "columns": {c: units[c] for c in names}}
+    if extra:
+        sidecar.update(extra)
+    write_text_atomic(path, buf.getvalue())
+    write_json_atomic(sidecar_path(path), sidecar)
+
+
+def read_csv_table(path: str | os.PathLike, required: list[str] | tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Read a CSV table written by :func:`write_csv_table` (header line, then numbers).
+
+    Returns name -> float array (N,). Raises :class:`SensorDataError` naming the
+    file when it is missing, empty, unparsable, or lacks a ``required`` column.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise SensorDataError(f"{p}: file not found")
+    with p.open("r", encoding="utf-8") as fh:
+        header = fh.readline().strip()
+        if not header:
+            raise SensorDataError(f"{p}: empty file (no header line)")
+        names = [h.strip() for h in header.split(",")]
+        try:
+            data = np.loadtxt(fh, delimiter=",", ndmin=2)
+        except ValueError as exc:
+            raise SensorDataError(f"{p}: unreadable numbers ({exc})") from None
+    if data.size == 0:
+        raise SensorDataError(f"{p}: no data rows")
+    if data.shape[1] != len(names):
+        raise SensorDataError(f"{p}: {data.shape[1]} values per row but {len(names)} column names")
+    table = {n: data[:, i] for i, n in enumerate(names)}
+    missing = [c for c in required if c not in table]
+    if missing:
+        raise SensorDataError(f"{p}: missing column {missing[0]!r}")
+    return table
+
+
+def read_sidecar(csv_path: str | os.PathLike) -> dict:
+    """Read the JSON sidecar of a CSV table; raises :class:`SensorDataError` naming the file."""
+    p = sidecar_path(csv_path)
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SensorDataError(f"{p}: sidecar not found") from None
+    except json.JSONDecodeError as exc:
+        raise SensorDataError(f"{p}: invalid JSON ({exc.msg} at line {exc.lineno})") from None

@@ -1,0 +1,1 @@
+"""Track: design alignment, irregularity synthesis, rail geometry and track-geometry products."""
