@@ -43,3 +43,11 @@ class EvaluationError(TrackfusionError):
 
 class SimulationError(TrackfusionError):
     """A simulation scenario cannot be built as requested."""
+
+
+def config_error_from_validation(exc, source: str) -> ConfigError:
+    """A :class:`ConfigError` of one line naming ``source`` and the first invalid field path
+    of a pydantic ``ValidationError`` (``source: imu.rate_hz: Input should be greater than 0``)."""
+    err = exc.errors()[0]
+    path = ".".join(str(p) for p in err["loc"]) or "(top level)"
+    return ConfigError(f"{source}: {path}: {err['msg']}")
