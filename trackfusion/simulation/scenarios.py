@@ -146,7 +146,7 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     log = SensorLog(imu=imu)
     drawn: dict[str, Any] = {"imu": drawn_imu}
     lever_arms: dict[str, list[float]] = {}
-    _simulate_aiding(cfg, kin, motion, origin, rngs, ideal, log, drawn, lever_arms)
+    _simulate_aiding(cfg, kin, track, motion, origin, rngs, ideal, log, drawn, lever_arms)
     timings["aiding_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -200,3 +200,168 @@ def _geometry_truth(track: TrackModel, s_lo: float, s_hi: float, step_m: float
         cols[f"irr_{name}"] = values
         units[f"irr_{name}"] = "m"
     return cols, units
+
+
+def _spec(model, section: dict, name: str):
+    try:
+        return model.model_validate(section)
+    except ValidationError as exc:
+        raise config_error_from_validation(exc, name) from None
+
+
+def _pop_lever_arm(section: dict, key: str) -> np.ndarray:
+    return np.asarray(section.pop(key, (0.0, 0.0, 0.0)), dtype=float)
+
+
+def _epochs(motion: MotionProfile, rate_hz: float) -> np.ndarray:
+    return np.arange(int(np.floor(motion.end_s * rate_hz + 1e-9)) + 1) / rate_hz
+
+
+def _simulate_aiding(cfg: ScenarioConfig, kin: TrolleyKinematics, track: TrackModel, motion: MotionProfile,
+                     origin: geodesy.Origin, rngs: dict, ideal: bool, log: SensorLog, drawn: dict,
+                     lever_arms: dict) -> None:
+    """Simulate every configured aiding sensor into ``log``; fill ``drawn`` and ``lever_arms``."""
+    if cfg.odometer is not None:
+        spec = _spec(aiding.OdometerSpec, cfg.odometer, "odometer")
+        t = _epochs(motion, spec.rate_hz)
+        s = motion.evaluate(t)[0]
+        log.odometer, drawn["odometer"] = aiding.simulate_odometer(t, kin.wheel_distance_m(s), spec,
+                                                                   rngs["odometer"], ideal)
+    if cfg.gnss is not None:
+        section = dict(cfg.gnss)
+        lever = _pop_lever_arm(section, "lever_arm_b_m")
+        lever_arms["gnss_antenna"] = lever.tolist()
+        spec = _spec(aiding.GnssSpec, section, "gnss")
+        t = _epochs(motion, spec.rate_hz)
+        st = kin.state(t, motion)
+        antenna = st["pos_n"] + st["R_nb"] @ lever
+        log.gnss, drawn["gnss"] = aiding.simulate_gnss(t, antenna, origin, spec, rngs["gnss"], ideal)
+    if cfg.total_stations is not None:
+        section = dict(cfg.total_stations)
+        lever = _pop_lever_arm(section, "prism_lever_arm_b_m")
+        lever_arms["prism"] = lever.tolist()
+        spec = _spec(aiding.TotalStationSpec, section, "total_stations")
+        t = _epochs(motion, 20.0)
+
+        def prism_at(t_imu: np.ndarray) -> np.ndarray:
+            st = kin.state(t_imu, motion)
+            return st["pos_n"] + st["R_nb"] @ lever
+
+        log.total_stations, drawn["total_stations"] = aiding.simulate_total_stations(
+            t, motion.evaluate(t)[0], prism_at, origin, spec, rngs["total_stations"], ideal)
+    if cfg.inclinometer is not None:
+        spec = _spec(aiding.InclinometerSpec, cfg.inclinometer, "inclinometer")
+        t = _epochs(motion, spec.rate_hz)
+        st = kin.state(t, motion)
+        # roll and pitch against the local plumb line at each point, not n's z axis
+        R_lb = np.swapaxes(geodesy.R_n_local(st["pos_n"], origin), -1, -2) @ st["R_nb"]
+        _, pitch, roll = ypr_from_R(R_lb)
+        log.inclinometer, drawn["inclinometer"] = aiding.simulate_inclinometer(
+            t, roll, pitch, spec, rngs["inclinometer"], ideal)
+    if cfg.gauge is not None:
+        spec = _spec(aiding.GaugeSpec, cfg.gauge, "gauge")
+        t = _epochs(motion, spec.rate_hz)
+        gauge_true = track.gauge_m(motion.evaluate(t)[0])
+        log.gauge, drawn["gauge"] = aiding.simulate_gauge(t, gauge_true, spec, rngs["gauge"], ideal)
+
+
+def _log_metadata(cfg: ScenarioConfig, spec: ImuSpec, lever_arms: dict, drawn: dict) -> dict[str, Any]:
+    """Run metadata for the log: survey description, sensor specifications, lever arms, station set-ups."""
+    meta: dict[str, Any] = {
+        "survey": {"scenario": cfg.name, "description": cfg.description, "simulated": True,
+                   "origin": cfg.origin.model_dump()},
+        "sensors": {"imu": spec.model_dump(), "odometer": cfg.odometer, "gnss": cfg.gnss,
+                    "inclinometer": cfg.inclinometer, "gauge": cfg.gauge},
+        "lever_arms": {"lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
+                       "mounting_ypr_deg": list(cfg.trolley.mounting_ypr_deg),
+                       "wheelbase_m": cfg.trolley.wheelbase_m, **{f"{k}_b_m": v for k, v in lever_arms.items()}},
+    }
+    if cfg.total_stations is not None:
+        # the set-up a surveyor knows: nominal positions and orientations, not the drawn errors
+        meta["total_stations"] = {s["id"]: {"pos_n_m": s["pos_n_m"], "orientation_deg": s.get("orientation_deg", 0.0)}
+                                  for s in cfg.total_stations["stations"]}
+    return meta
+
+
+@dataclass
+class SimulationReport:
+    """What :func:`simulate_to_dir` wrote: the folder, file names, and a few figures."""
+
+    out_dir: Path
+    files: list[str]
+    scenario: str
+    seed: int
+    ideal: bool
+    duration_s: float
+    imu_samples: int
+    counts: dict[str, int]
+    timings_s: dict[str, float]
+
+    def format(self) -> str:
+        """A short human-readable summary."""
+        lines = [f"simulated {self.scenario!r} (seed {self.seed}{', ideal' if self.ideal else ''}): "
+                 f"{self.duration_s / 60:.1f} min, {self.imu_samples} IMU samples",
+                 "  " + ", ".join(f"{k}: {v}" for k, v in self.counts.items()),
+                 f"  wrote {', '.join(self.files)} in {self.out_dir}/"]
+        return "\n".join(lines)
+
+
+def pipeline_for(sim: Simulation) -> dict[str, Any]:
+    """The pipeline a simulated run should be processed with (paths relative to its folder)."""
+    cfg = sim.config
+    factors = {"imu": True, "zupt": True, "nhc": True, "odometer": cfg.odometer is not None,
+               "gnss": cfg.gnss is not None, "total_stations": cfg.total_stations is not None,
+               "inclinometer": cfg.inclinometer is not None}
+    sensors: dict[str, Any] = {"imu": _imu_spec(cfg.imu).model_dump()}
+    arms = sim.truth_info["lever_arms_b_m"]
+    if "gnss_antenna" in arms:
+        sensors["gnss"] = {"lever_arm_b_m": arms["gnss_antenna"]}
+    if "prism" in arms:
+        sensors["total_stations"] = {"prism_lever_arm_b_m": arms["prism"],
+                                     "stations": sim.log.metadata.get("total_stations", {})}
+    return {
+        "name": cfg.name,
+        "inputs": {"log": "log.mcap", "reference": "truth.csv"},
+        "origin": sim.origin.to_dict(),
+        "trolley": {"wheelbase_m": cfg.trolley.wheelbase_m, "reference_rail": cfg.trolley.reference_rail,
+                    "lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
+                    "mounting_ypr_deg": list(cfg.trolley.mounting_ypr_deg)},
+        "sensors": sensors,
+        "factors": factors,
+        "keyframes": {"spacing_s": 0.1},
+        "outputs": {"trajectory_rate_hz": cfg.truth.rate_hz, "geometry_step_m": cfg.truth.geometry_step_m},
+    }
+
+
+def simulate_to_dir(scenario: str, out_dir: str | Path, seed: int = 0, ideal: bool = False,
+                    overrides: list[str] | None = None,
+                    progress: Callable[[str], None] | None = None) -> SimulationReport:
+    """Simulate ``scenario`` and write its files into ``out_dir`` (each atomically)."""
+    from ..sensors.fileio import write_csv_table, write_json_atomic, write_text_atomic
+    from ..sensors.mcap_log import write_log
+
+    say = progress or (lambda _msg: None)
+    sim = simulate(scenario, seed=seed, ideal=ideal, overrides=overrides, progress=say)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tic = time.perf_counter()
+    say(f"[{sim.config.name}] writing {out}/")
+    origin = sim.origin.to_dict()
+    write_log(out / "log.mcap", sim.log)
+    write_csv_table(out / "truth.csv", sim.truth, TRUTH_COLUMNS, "n", origin, fmt="%.12g",
+                    extra={"description": "truth of the IMU origin (simulated)", **sim.truth_info})
+    write_csv_table(out / "geometry_truth.csv", sim.geometry_truth, sim.geometry_units, "n", origin, fmt="%.12g",
+                    extra={"description": "rail reference points (top of rail, running edge) and irregularities"})
+    header = f"# trackfusion pipeline for the simulated survey {sim.config.name!r} (seed {seed})\n"
+    write_text_atomic(out / "pipeline.yaml", header + yaml.safe_dump(pipeline_for(sim), sort_keys=False))
+    sim.timings_s["write_s"] = time.perf_counter() - tic
+    counts = {"imu": sim.log.imu.t_s.size}
+    for name in ("odometer", "gnss", "inclinometer", "gauge"):
+        data = getattr(sim.log, name)
+        if data is not None:
+            counts[name] = data.t_s.size
+    for sid, data in sim.log.total_stations.items():
+        counts[f"total_station/{sid}"] = data.t_s.size
+    return SimulationReport(out, ["log.mcap", "truth.csv", "truth.json", "geometry_truth.csv",
+                                  "geometry_truth.json", "pipeline.yaml"], sim.config.name, seed, ideal,
+                            sim.motion.end_s, sim.log.imu.t_s.size, counts, sim.timings_s)
