@@ -176,8 +176,9 @@ def synthesize_psd(component: str, n: int, ds_m: float, cfg: PsdConfig, rng: np.
     band = (omega >= 2 * np.pi / cfg.wavelength_max_m) & (omega <= 2 * np.pi / cfg.wavelength_min_m)
     psd = np.zeros_like(omega)
     psd[band] = german_psd(component, omega[band], cfg.spectrum)
-    # complex Gaussian coefficient per bin: E|c|^2 = S dOmega, and x = sum Re(c e^{i w s}) * ...
-    coef = (rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size)) * np.sqrt(psd * d_omega / 2.0)
+    # complex Gaussian coefficient per bin with E|c|^2 = S dOmega / 2: irfft sums 2 Re(c e^{i w s})
+    # over the positive bins, each term then has variance S dOmega (one-sided PSD)
+    coef = (rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size)) * np.sqrt(psd * d_omega / 4.0)
     x = fft.irfft(coef * n_fft, n=n_fft)[:n]
     if component == "cross_level":
         x = x * 2 * HALF_ROLLING_BASE_M  # roll angle -> rail height difference
