@@ -118,10 +118,11 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     rngs = _rngs(seed)
     origin = geodesy.Origin(cfg.origin.lat_deg, cfg.origin.lon_deg, cfg.origin.h_m)
 
-    say(f"[{cfg.name}] building track and trolley motion")
+    # validate everything before any work or output
+    spec = _imu_spec(cfg.imu)
+    aiding_specs = _aiding_specs(cfg)
     design = DesignAlignment.from_dict(cfg.alignment)
-    irr = synthesize(IrregularitySpec.from_dict(cfg.irregularities), design.length_m, rngs["irregularities"])
-    track = TrackModel(design, irr)
+    irr_spec = IrregularitySpec.from_dict(cfg.irregularities)
     motion = _motion_plan(cfg)
     geometry = _trolley_geometry(cfg)
     s_lo, s_hi = motion.chainage_range_m
@@ -129,11 +130,14 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     if s_lo - reach < 0 or s_hi + reach > design.length_m:
         raise ConfigError(f"motion: chainage range [{s_lo}, {s_hi}] m needs the track to extend "
                           f"{reach} m beyond it (alignment length {design.length_m} m)")
+
+    say(f"[{cfg.name}] building track and trolley motion")
+    irr = synthesize(irr_spec, design.length_m, rngs["irregularities"])
+    track = TrackModel(design, irr)
     kin = TrolleyKinematics.build(track, geometry, origin, s_lo - reach / 2, s_hi + reach / 2)
     timings["track_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
-    spec = _imu_spec(cfg.imu)
     dt = 1.0 / spec.rate_hz
     n_imu = int(np.floor(motion.end_s * spec.rate_hz + 1e-9))
     t_imu = dt * np.arange(1, n_imu + 1)
@@ -146,7 +150,7 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     log = SensorLog(imu=imu)
     drawn: dict[str, Any] = {"imu": drawn_imu}
     lever_arms: dict[str, list[float]] = {}
-    _simulate_aiding(cfg, kin, track, motion, origin, rngs, ideal, log, drawn, lever_arms)
+    _simulate_aiding(aiding_specs, kin, track, motion, origin, rngs, ideal, log, drawn, lever_arms)
     timings["aiding_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -217,30 +221,43 @@ def _epochs(motion: MotionProfile, rate_hz: float) -> np.ndarray:
     return np.arange(int(np.floor(motion.end_s * rate_hz + 1e-9)) + 1) / rate_hz
 
 
-def _simulate_aiding(cfg: ScenarioConfig, kin: TrolleyKinematics, track: TrackModel, motion: MotionProfile,
+def _aiding_specs(cfg: ScenarioConfig) -> dict[str, tuple[Any, np.ndarray | None]]:
+    """Validated specs of the configured aiding sensors: name -> (spec, lever arm in b or None)."""
+    out: dict[str, tuple[Any, np.ndarray | None]] = {}
+    for name, model, lever_key in (("odometer", aiding.OdometerSpec, None),
+                                   ("gnss", aiding.GnssSpec, "lever_arm_b_m"),
+                                   ("total_stations", aiding.TotalStationSpec, "prism_lever_arm_b_m"),
+                                   ("inclinometer", aiding.InclinometerSpec, None),
+                                   ("gauge", aiding.GaugeSpec, None)):
+        section = getattr(cfg, name)
+        if section is None:
+            continue
+        section = dict(section)
+        lever = _pop_lever_arm(section, lever_key) if lever_key else None
+        out[name] = (_spec(model, section, name), lever)
+    return out
+
+
+def _simulate_aiding(specs: dict, kin: TrolleyKinematics, track: TrackModel, motion: MotionProfile,
                      origin: geodesy.Origin, rngs: dict, ideal: bool, log: SensorLog, drawn: dict,
                      lever_arms: dict) -> None:
     """Simulate every configured aiding sensor into ``log``; fill ``drawn`` and ``lever_arms``."""
-    if cfg.odometer is not None:
-        spec = _spec(aiding.OdometerSpec, cfg.odometer, "odometer")
+    if "odometer" in specs:
+        spec, _ = specs["odometer"]
         t = _epochs(motion, spec.rate_hz)
         s = motion.evaluate(t)[0]
         log.odometer, drawn["odometer"] = aiding.simulate_odometer(t, kin.wheel_distance_m(s), spec,
                                                                    rngs["odometer"], ideal)
-    if cfg.gnss is not None:
-        section = dict(cfg.gnss)
-        lever = _pop_lever_arm(section, "lever_arm_b_m")
+    if "gnss" in specs:
+        spec, lever = specs["gnss"]
         lever_arms["gnss_antenna"] = lever.tolist()
-        spec = _spec(aiding.GnssSpec, section, "gnss")
         t = _epochs(motion, spec.rate_hz)
         st = kin.state(t, motion)
         antenna = st["pos_n"] + st["R_nb"] @ lever
         log.gnss, drawn["gnss"] = aiding.simulate_gnss(t, antenna, origin, spec, rngs["gnss"], ideal)
-    if cfg.total_stations is not None:
-        section = dict(cfg.total_stations)
-        lever = _pop_lever_arm(section, "prism_lever_arm_b_m")
+    if "total_stations" in specs:
+        spec, lever = specs["total_stations"]
         lever_arms["prism"] = lever.tolist()
-        spec = _spec(aiding.TotalStationSpec, section, "total_stations")
         t = _epochs(motion, 20.0)
 
         def prism_at(t_imu: np.ndarray) -> np.ndarray:
@@ -249,8 +266,8 @@ def _simulate_aiding(cfg: ScenarioConfig, kin: TrolleyKinematics, track: TrackMo
 
         log.total_stations, drawn["total_stations"] = aiding.simulate_total_stations(
             t, motion.evaluate(t)[0], prism_at, origin, spec, rngs["total_stations"], ideal)
-    if cfg.inclinometer is not None:
-        spec = _spec(aiding.InclinometerSpec, cfg.inclinometer, "inclinometer")
+    if "inclinometer" in specs:
+        spec, _ = specs["inclinometer"]
         t = _epochs(motion, spec.rate_hz)
         st = kin.state(t, motion)
         # roll and pitch against the local plumb line at each point, not n's z axis
@@ -258,11 +275,11 @@ def _simulate_aiding(cfg: ScenarioConfig, kin: TrolleyKinematics, track: TrackMo
         _, pitch, roll = ypr_from_R(R_lb)
         log.inclinometer, drawn["inclinometer"] = aiding.simulate_inclinometer(
             t, roll, pitch, spec, rngs["inclinometer"], ideal)
-    if cfg.gauge is not None:
-        spec = _spec(aiding.GaugeSpec, cfg.gauge, "gauge")
+    if "gauge" in specs:
+        spec, _ = specs["gauge"]
         t = _epochs(motion, spec.rate_hz)
-        gauge_true = track.gauge_m(motion.evaluate(t)[0])
-        log.gauge, drawn["gauge"] = aiding.simulate_gauge(t, gauge_true, spec, rngs["gauge"], ideal)
+        log.gauge, drawn["gauge"] = aiding.simulate_gauge(t, track.gauge_m(motion.evaluate(t)[0]), spec,
+                                                          rngs["gauge"], ideal)
 
 
 def _log_metadata(cfg: ScenarioConfig, spec: ImuSpec, lever_arms: dict, drawn: dict) -> dict[str, Any]:
@@ -337,7 +354,7 @@ def simulate_to_dir(scenario: str, out_dir: str | Path, seed: int = 0, ideal: bo
                     overrides: list[str] | None = None,
                     progress: Callable[[str], None] | None = None) -> SimulationReport:
     """Simulate ``scenario`` and write its files into ``out_dir`` (each atomically)."""
-    from ..sensors.fileio import write_csv_table, write_json_atomic, write_text_atomic
+    from ..sensors.fileio import write_csv_table, write_text_atomic
     from ..sensors.mcap_log import write_log
 
     say = progress or (lambda _msg: None)
