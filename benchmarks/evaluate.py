@@ -3,7 +3,8 @@
 Writes the two CSVs (analytic run: 1 km curve, three round trips, static holds;
 known along / lateral / vertical errors) into a temporary folder, then times
 ``trackfusion evaluate EST REF --json F`` in-process (CSV reading, matching,
-statistics, table, JSON) and, separately, the pure computation. Prints the
+statistics, table, JSON) and, separately, the CSV reading and the pure
+computation (best of three calls). Prints the
 figures and writes them to ``benchmarks/results/evaluate.json`` (plus the
 relative-accuracy figure ``benchmarks/results/evaluate.png``).
 
@@ -69,18 +70,25 @@ def main() -> int:
         if code != 0:
             print(f"evaluate failed with exit code {code}", file=sys.stderr)
             return 1
+        t0 = time.perf_counter()
         est_traj, _ = read_trajectory(est)
         ref_traj, _ = read_trajectory(ref)
-        t0 = time.perf_counter()
-        result = evaluate_trajectories(est_traj, ref_traj)
-        compute_s = time.perf_counter() - t0
+        read_s = time.perf_counter() - t0
+        compute_runs_s = []
+        for _ in range(3):  # the first call also pays for page faults of fresh arrays
+            t0 = time.perf_counter()
+            result = evaluate_trajectories(est_traj, ref_traj)
+            compute_runs_s.append(time.perf_counter() - t0)
+        compute_s = min(compute_runs_s)
         relative_accuracy_png(result, RESULTS / "evaluate.png", title="benchmark: 1 h at 200 Hz (synthetic)")
         n_est, n_ref = est_traj.t_s.size, ref_traj.t_s.size
         figures = json.loads(out_json.read_text())
+        figures["estimate"], figures["reference"] = est.name, ref.name  # not the temporary folder
     record = {
         "benchmark": "trackfusion evaluate, one hour at 200 Hz",
         "estimate_rows": int(n_est), "reference_rows": int(n_ref),
-        "cli_wall_s": round(cli_s, 3), "compute_only_wall_s": round(compute_s, 3),
+        "cli_wall_s": round(cli_s, 3), "read_csv_wall_s": round(read_s, 3),
+        "compute_only_wall_s": round(compute_s, 3), "compute_only_runs_s": [round(v, 3) for v in compute_runs_s],
         "target_s": 5.0, "within_target": cli_s < 5.0,
         "python": platform.python_version(), "machine": platform.machine(),
         "evaluate_json": figures,
@@ -89,7 +97,8 @@ def main() -> int:
     print(stdout.getvalue())
     print(f"evaluate: {n_est} estimate rows (1 h at 200 Hz) against {n_ref} reference rows")
     print(f"  trackfusion evaluate (read CSVs, evaluate, table, JSON): {cli_s:.2f} s (target < 5 s)")
-    print(f"  evaluation maths only:                                   {compute_s:.2f} s")
+    print(f"  reading the two CSVs only:                               {read_s:.2f} s")
+    print(f"  evaluation maths only (best of 3):                       {compute_s:.2f} s")
     print(f"  written: {RESULTS / 'evaluate.json'}, {RESULTS / 'evaluate.png'}")
     return 0
 

@@ -126,3 +126,22 @@ def test_missing_sidecar_and_other_origin_exit_2(files, capsys, tmp_path):
     (tmp_path / "other.json").unlink()
     code, err = _run_cli(capsys, est, other)
     assert code == 2 and "sidecar not found" in err and "other.json" in err
+
+
+def test_header_only_file_exit_2_with_one_line(files, capsys, tmp_path):
+    _, est, _ = files
+    hdr = tmp_path / "header_only.csv"
+    hdr.write_text("t_s,e_m,n_m,u_m,ve_mps,vn_mps,vu_mps,chainage_m\n")
+    code, err = _run_cli(capsys, est, hdr)
+    assert code == 2
+    assert err.count("\n") == 1 and str(hdr) in err and "no data rows" in err
+
+
+def test_estimate_time_not_increasing_exit_2(files, capsys, tmp_path):
+    _, _, ref = files
+    cols = syn.truth_columns(np.arange(0.0, 420.0, 0.01))
+    cols["t_s"] = cols["t_s"][::-1].copy()
+    rev = _write(tmp_path / "reversed.csv", syn.with_errors(cols, np.zeros((cols["t_s"].size, 3))))
+    code, err = _run_cli(capsys, rev, ref)
+    assert code == 2
+    assert err.count("\n") == 1 and str(rev) in err and "t_s is not strictly increasing at data row 2" in err

@@ -88,7 +88,7 @@ def _gauss_markov(rng, n, corr_steps, sigma):
     return x + rng.normal(0.0, sigma) * phi ** np.arange(n)  # start (nearly) stationary
 
 
-@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), scale_m=st.sampled_from([0.5, 1.0, 2.0]),
        corr_over_scale=st.floats(10.0, 40.0), sigma_mm=st.floats(0.1, 20.0), bias_mm=st.floats(-20.0, 20.0))
 def test_eq4_holds_for_slowly_varying_errors(seed, scale_m, corr_over_scale, sigma_mm, bias_mm):

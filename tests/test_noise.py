@@ -35,3 +35,17 @@ def test_white_and_quantise():
     assert noise.white(200_000, 0.7, rng).std() == pytest.approx(0.7, rel=0.01)
     assert noise.quantise([0.24, 0.26, -0.74], 0.5).tolist() == [0.0, 0.5, -0.5]
     assert noise.quantise([0.123], 0.0).tolist() == [0.123]
+
+
+def test_same_generator_state_same_series_and_bad_arguments():
+    a = noise.gauss_markov(1000, 0.01, 1.0, 2.0, np.random.default_rng(7))
+    b = noise.gauss_markov(1000, 0.01, 1.0, 2.0, np.random.default_rng(7))
+    assert np.array_equal(a, b)
+    assert noise.gauss_markov(5, 0.01, 0.0, 2.0, np.random.default_rng(7)).tolist() == [0.0] * 5
+    from trackfusion.errors import SimulationError
+    for call in (lambda: noise.gauss_markov(10, 0.01, 1.0, 0.0, np.random.default_rng()),
+                 lambda: noise.gauss_markov(10, -1.0, 1.0, 1.0, np.random.default_rng()),
+                 lambda: noise.random_walk(10, 0.0, 1.0, np.random.default_rng()),
+                 lambda: noise.white(-1, 1.0, np.random.default_rng())):
+        with pytest.raises(SimulationError):
+            call()

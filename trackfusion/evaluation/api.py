@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -246,7 +247,11 @@ def read_trajectory(path: str | Path) -> tuple[Trajectory, dict]:
     Raises :class:`SensorDataError`/:class:`EvaluationError` naming the file
     (missing or empty file, missing column, non-finite value, positions not in ``n``).
     """
-    table = read_csv_table(path, required=REQUIRED_COLUMNS)
+    with warnings.catch_warnings():
+        # numpy warns "input contained no data" on a header-only file; read_csv_table raises
+        # SensorDataError for it, which must stay the one line the command prints
+        warnings.simplefilter("ignore", UserWarning)
+        table = read_csv_table(path, required=REQUIRED_COLUMNS)
     sidecar = read_sidecar(path)
     if not isinstance(sidecar, dict):
         raise EvaluationError(f"{path}: sidecar is not a JSON object")

@@ -212,6 +212,7 @@ def _check_increasing_time(traj: Trajectory) -> None:
 
 def _match_time(est: Trajectory, ref: Trajectory):
     _check_increasing_time(ref)
+    _check_increasing_time(est)  # passes are cut at time gaps and reversals: the order must be time order
     t0, t1 = ref.t_s[0], ref.t_s[-1]
     keep = (est.t_s >= t0) & (est.t_s <= t1)
     if not keep.any():

@@ -1,26 +1,33 @@
 """Measurement simulation for the aiding sensors: odometer, GNSS, total stations, inclinometer, gauge.
 
-Each ``simulate_*`` takes the truth at the sensor's epochs (or a callable
-giving it), a strict spec, a ``numpy.random.Generator`` and ``ideal`` (every
-error off: the output equals the truth), and returns the data container and
-a JSON-able dict of every error drawn (for ``truth.json``). The error models
-are documented in ``docs/error_models.md``.
+Each ``simulate_*`` takes the truth at the sensor's epochs (the total stations:
+a callable or a denser truth series, because they sample on their own
+clocks), a strict spec (pydantic, unknown keys refused, units in the field
+names), a ``numpy.random.Generator`` and ``ideal``. ``ideal=True`` switches
+every *error* off, so the output equals the truth (clock offsets included);
+the observation geometry stays (GNSS outages, total-station hand-overs, range
+and line-of-sight limits). The same generator state gives the same output.
+Each returns the data container and a JSON-able dict of the errors actually
+drawn (for ``truth.json``). The error models are documented in
+``docs/error_models.md``.
 """
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Callable, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.interpolate import CubicSpline
 from scipy.signal import lfilter
 
 from .. import geodesy
+from ..errors import SimulationError
 from ..registration.polar import DEFAULT_REFRACTION_K, StationSetup, n_to_polar
 from . import noise
 from .types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData
 
-ARCSEC = np.pi / 180.0 / 3600.0
+ARCSEC = np.pi / 180.0 / 3600.0  #: one arcsecond [rad]
 
 
 class _Spec(BaseModel):
@@ -28,31 +35,61 @@ class _Spec(BaseModel):
 
 
 class Interval(_Spec):
-    """A time interval [start_s, start_s + duration_s) on the IMU clock."""
+    """A time interval [start_s, start_s + duration_s) on the IMU clock [s]."""
 
     start_s: float
     duration_s: float = Field(gt=0)
 
 
 class Slip(Interval):
-    """A wheel slip: ``extra_m`` of reported distance accumulated evenly over the interval."""
+    """A wheel slip: ``extra_m`` [m] of reported distance (negative: lost) accrued evenly over the interval."""
 
     extra_m: float
 
 
 def _in_intervals(t: np.ndarray, intervals) -> np.ndarray:
+    """Boolean mask (N,) of the times ``t`` (N,) inside any of the intervals."""
     mask = np.zeros(t.shape, dtype=bool)
     for iv in intervals:
         mask |= (t >= iv.start_s) & (t < iv.start_s + iv.duration_s)
     return mask
 
 
+def _times(t_s, name: str) -> np.ndarray:
+    """Validated sample times (N,) [s]: finite, 1-D, strictly increasing."""
+    t = np.asarray(t_s, dtype=float)
+    if t.ndim != 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise SimulationError(f"{name}: t_s must be a finite, strictly increasing 1-D array")
+    return t
+
+
+def _series(x, n: int, name: str, field: str, width: int | None = None) -> np.ndarray:
+    """Validated truth series of n rows ((n,) or (n, width)), finite."""
+    a = np.asarray(x, dtype=float)
+    shape = (n,) if width is None else (n, width)
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        raise SimulationError(f"{name}: {field} must be finite with shape {shape}, got {a.shape}")
+    return a
+
+
+def _step_s(t: np.ndarray, rate_hz: float) -> float:
+    """Nominal sample interval [s] of (regular) epochs ``t``: their median step, else ``1 / rate_hz``."""
+    return float(np.median(np.diff(t))) if t.size > 1 else 1.0 / rate_hz
+
+
 # --- odometer ---------------------------------------------------------------------------------
 
 class OdometerSpec(_Spec):
-    """Wheel encoder. ``scale_error_ppm`` 1-sigma of the constant scale error; ``radius_drift_ppm_per_h``
-    linear change of the wheel radius (wear, temperature); ``slips``; ``gross_error_probability`` per
-    sample of an isolated gross error of up to ``gross_error_max_m`` (seed 000 III.C.7)."""
+    """Wheel encoder on the measuring wheel.
+
+    ``scale_error_ppm`` 1-sigma of the constant scale-factor error (drawn once);
+    ``radius_drift_ppm_per_h`` linear change of the effective wheel radius (wear, temperature);
+    ``slips`` given slip episodes; ``random_slips_per_km`` mean number of random slips per km
+    travelled, each of ``random_slip_duration_s`` with an extra distance uniform in
+    +-``random_slip_max_m``; ``gross_error_probability`` per sample of an isolated gross error
+    (spike) in the reported distance of magnitude uniform in
+    [``gross_error_min_m``, ``gross_error_max_m``] and random sign (seed 000 III.C.7).
+    """
 
     rate_hz: float = Field(100.0, gt=0)
     wheel_diameter_m: float = Field(0.15, gt=0)
@@ -60,8 +97,18 @@ class OdometerSpec(_Spec):
     scale_error_ppm: float = Field(200.0, ge=0)
     radius_drift_ppm_per_h: float = 0.0
     slips: list[Slip] = []
+    random_slips_per_km: float = Field(0.0, ge=0)
+    random_slip_duration_s: float = Field(0.5, gt=0)
+    random_slip_max_m: float = Field(0.02, ge=0)
     gross_error_probability: float = Field(0.0, ge=0, le=0.1)
+    gross_error_min_m: float = Field(0.02, ge=0)
     gross_error_max_m: float = Field(0.05, ge=0)
+
+    @model_validator(mode="after")
+    def _gross_range(self) -> "OdometerSpec":
+        if self.gross_error_max_m < self.gross_error_min_m:
+            raise ValueError("gross_error_max_m must be >= gross_error_min_m")
+        return self
 
     @property
     def ticks_per_m(self) -> float:
@@ -69,39 +116,76 @@ class OdometerSpec(_Spec):
         return self.ticks_per_rev / (np.pi * self.wheel_diameter_m)
 
 
+def _random_slips(t: np.ndarray, inc_m: np.ndarray, spec: OdometerSpec, rng: np.random.Generator) -> list[Slip]:
+    """Random slips: Poisson count for the distance travelled, starting at moving epochs."""
+    travelled_km = float(np.abs(inc_m).sum()) * 1e-3
+    count = int(rng.poisson(spec.random_slips_per_km * travelled_km)) if spec.random_slips_per_km > 0 else 0
+    moving = np.flatnonzero(np.abs(inc_m) > 0)
+    if count == 0 or moving.size == 0:
+        return []
+    starts = t[np.sort(rng.choice(moving, size=count))]
+    extra = rng.uniform(-spec.random_slip_max_m, spec.random_slip_max_m, count)
+    return [Slip(start_s=float(a), duration_s=spec.random_slip_duration_s, extra_m=float(e))
+            for a, e in zip(starts, extra)]
+
+
+def _slip_ramp_m(t: np.ndarray, slips: list[Slip]) -> np.ndarray:
+    """Accumulated extra distance (N,) [m] of the slips: a linear ramp over each slip interval."""
+    out = np.zeros(t.shape)
+    for s in slips:
+        out += s.extra_m * np.clip((t - s.start_s) / s.duration_s, 0.0, 1.0)
+    return out
+
+
 def simulate_odometer(t_s: np.ndarray, wheel_distance_m: np.ndarray, spec: OdometerSpec,
                       rng: np.random.Generator, ideal: bool = False) -> tuple[OdometerData, dict]:
-    """Odometer records at ``t_s`` (N,) from the true signed rolled distance of the wheel (N,) [m]."""
-    t = np.asarray(t_s, dtype=float)
-    d_true = np.asarray(wheel_distance_m, dtype=float) - wheel_distance_m[0]
+    """Odometer records at ``t_s`` (N,) [s] from the true signed cumulative rolled distance of the
+    measuring wheel (N,) [m].
+
+    The counter is zeroed at the first epoch (``distance_m[0] = 0``). Measured distance:
+    ``d_meas = cumsum(delta d_true (1 + scale + drift (t - t0))) + slips``; ``ticks =
+    floor(d_meas ticks_per_m)``; ``distance_m = ticks / ticks_per_m`` plus isolated gross errors.
+    Ideal: ``distance_m`` is the exact true distance and ``ticks`` its rounded count.
+    Drawn: ``scale_error`` [-], ``radius_drift_ppm_per_h``, ``slips`` [{start_s, duration_s, extra_m}],
+    ``gross_error_indices``, ``gross_error_m``.
+    """
+    t = _times(t_s, "odometer")
+    d_true = _series(wheel_distance_m, t.size, "odometer", "wheel_distance_m")
+    d_true = d_true - d_true[0]
     if ideal:
         ticks = np.round(d_true * spec.ticks_per_m).astype(np.int64)
-        return OdometerData(t, d_true.copy(), ticks), {"ideal": True}
+        return OdometerData(t, d_true.copy(), ticks), {"ideal": True, "scale_error": 0.0, "slips": [],
+                                                       "gross_error_indices": [], "gross_error_m": []}
     scale = rng.standard_normal() * spec.scale_error_ppm * 1e-6
     drift = spec.radius_drift_ppm_per_h * 1e-6 * (t - t[0]) / 3600.0
-    # distance increments scaled by the (slowly changing) scale error, plus slips
-    inc = np.diff(d_true, prepend=0.0) * (1.0 + scale + drift)
-    for slip in spec.slips:
-        m = _in_intervals(t, [slip])
-        if m.any():
-            inc[m] += slip.extra_m / m.sum()
-    d_meas = np.cumsum(inc)
-    ticks = np.floor(d_meas * spec.ticks_per_m).astype(np.int64)
+    inc = np.diff(d_true, prepend=0.0)
+    slips = list(spec.slips) + _random_slips(t, inc, spec, rng)
+    d_meas = np.cumsum(inc * (1.0 + scale + drift)) + _slip_ramp_m(t, slips)
+    ticks = np.floor(d_meas * spec.ticks_per_m + 1e-9).astype(np.int64)
     distance = ticks / spec.ticks_per_m
-    gross = rng.random(t.size) < spec.gross_error_probability
-    gross_idx = np.flatnonzero(gross)
-    distance[gross_idx] += rng.uniform(-1, 1, gross_idx.size) * spec.gross_error_max_m
-    drawn = {"scale_error": float(scale), "gross_error_indices": gross_idx.tolist(),
-             "gross_error_m": (distance[gross_idx] - ticks[gross_idx] / spec.ticks_per_m).tolist()}
+    gross_idx = np.flatnonzero(rng.random(t.size) < spec.gross_error_probability)
+    gross = (rng.uniform(spec.gross_error_min_m, spec.gross_error_max_m, gross_idx.size)
+             * rng.choice([-1.0, 1.0], gross_idx.size))
+    distance[gross_idx] += gross
+    drawn = {"ideal": False, "scale_error": float(scale), "radius_drift_ppm_per_h": spec.radius_drift_ppm_per_h,
+             "slips": [s.model_dump() for s in slips],
+             "gross_error_indices": gross_idx.tolist(), "gross_error_m": gross.tolist()}
     return OdometerData(t, distance, ticks), drawn
 
 
 # --- GNSS ---------------------------------------------------------------------------------------
 
 class GnssSpec(_Spec):
-    """RTK GNSS (2 cm + 1 ppm class). White noise and a Gauss-Markov error per axis (horizontal,
-    vertical), a ppm term from the baseline to the base station, float episodes, multipath
-    outliers displaced 0.3-3 m (reported covariance unchanged) and outages."""
+    """RTK GNSS (2 cm + 1 ppm class, seed 002).
+
+    Per axis (horizontal: east and north; vertical): white noise ``sigma_*_mm``; a first-order
+    Gauss-Markov error ``gm_sigma_*_mm`` with ``gm_tau_s`` (multipath and residual atmosphere),
+    to which ``ppm`` x ``baseline_km`` is added in quadrature; ``float_episodes`` (fix quality 5,
+    extra Gauss-Markov error ``float_sigma_*_mm`` with ``float_tau_s``, covariance inflated to
+    match); ``outlier_fraction`` of the fixes displaced by ``outlier_min_m``..``outlier_max_m``
+    in a random 3-D direction with the reported covariance unchanged (multipath); ``outages``
+    (no fixes).
+    """
 
     rate_hz: float = Field(1.0, gt=0)
     sigma_h_mm: float = Field(8.0, ge=0)
@@ -114,59 +198,92 @@ class GnssSpec(_Spec):
     float_episodes: list[Interval] = []
     float_sigma_h_mm: float = Field(80.0, ge=0)
     float_sigma_v_mm: float = Field(150.0, ge=0)
+    float_tau_s: float = Field(30.0, gt=0)
     outlier_fraction: float = Field(0.0, ge=0, le=0.5)
     outlier_min_m: float = Field(0.3, ge=0)
     outlier_max_m: float = Field(3.0, ge=0)
     outages: list[Interval] = []
 
+    @model_validator(mode="after")
+    def _outlier_range(self) -> "GnssSpec":
+        if self.outlier_max_m < self.outlier_min_m:
+            raise ValueError("outlier_max_m must be >= outlier_min_m")
+        return self
+
+    def sigmas_m(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(white, Gauss-Markov incl. ppm, float) 1-sigma per ENU axis, each (3,) [m]."""
+        ppm_m = self.ppm * 1e-6 * self.baseline_km * 1e3
+        white = np.array([self.sigma_h_mm, self.sigma_h_mm, self.sigma_v_mm]) * 1e-3
+        gm = np.hypot(np.array([self.gm_sigma_h_mm, self.gm_sigma_h_mm, self.gm_sigma_v_mm]) * 1e-3, ppm_m)
+        flt = np.array([self.float_sigma_h_mm, self.float_sigma_h_mm, self.float_sigma_v_mm]) * 1e-3
+        return white, gm, flt
+
+
+def _gm_columns(n: int, dt_s: float, sigmas: np.ndarray, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Independent Gauss-Markov series, (n, len(sigmas))."""
+    return np.column_stack([noise.gauss_markov(n, dt_s, s, tau_s, rng) for s in sigmas])
+
 
 def simulate_gnss(t_s: np.ndarray, antenna_pos_n: np.ndarray, origin: geodesy.Origin, spec: GnssSpec,
                   rng: np.random.Generator, ideal: bool = False) -> tuple[GnssData, dict]:
-    """GNSS fixes at ``t_s`` (N,) of the antenna truth (N, 3) in ``n``; outage epochs are dropped."""
-    t = np.asarray(t_s, dtype=float)
+    """GNSS fixes at the (regular) epochs ``t_s`` (N,) [s] of the antenna truth (N, 3) in ``n`` [m].
+
+    Epochs inside an outage are dropped (also when ideal). Latitude, longitude and ellipsoidal
+    height come from the erroneous position through :func:`geodesy.n_to_geodetic`; the reported
+    covariance is diagonal ENU (at the antenna; the ENU/n rotation, < 1e-4 rad over 500 m, is
+    neglected): white^2 + GM^2, plus float^2 in float episodes, unchanged for outliers.
+    Drawn (kept fixes): ``error_n_m`` (K, 3), ``outlier_times_s``, ``outlier_offsets_n_m``,
+    ``float_times_s``, ``error_n_m_rms``.
+    """
+    t = _times(t_s, "gnss")
+    truth = _series(antenna_pos_n, t.size, "gnss", "antenna_pos_n", 3)
     n = t.size
-    dt = 1.0 / spec.rate_hz
-    ppm_m = spec.ppm * 1e-6 * spec.baseline_km * 1e3
-    sig_h = np.hypot(spec.sigma_h_mm * 1e-3, ppm_m)
-    sig_v = np.hypot(spec.sigma_v_mm * 1e-3, ppm_m)
-    sig = np.array([sig_h, sig_h, sig_v])
-    gm_sig = np.array([spec.gm_sigma_h_mm, spec.gm_sigma_h_mm, spec.gm_sigma_v_mm]) * 1e-3
-    white = np.column_stack([noise.white(n, s, rng) for s in sig])
-    gm = np.column_stack([noise.gauss_markov(n, dt, s, spec.gm_tau_s, rng) for s in gm_sig])
-    is_float = _in_intervals(t, spec.float_episodes)
-    float_sig = np.array([spec.float_sigma_h_mm, spec.float_sigma_h_mm, spec.float_sigma_v_mm]) * 1e-3
-    float_err = np.column_stack([noise.gauss_markov(n, dt, s, 30.0, rng) for s in float_sig])
-    outlier = rng.random(n) < spec.outlier_fraction
-    direction = rng.standard_normal((n, 3))
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    jump = direction * rng.uniform(spec.outlier_min_m, spec.outlier_max_m, n)[:, None]
-    err = white + gm + np.where(is_float[:, None], float_err, 0.0) + np.where(outlier[:, None], jump, 0.0)
     keep = ~_in_intervals(t, spec.outages)
+    is_float = _in_intervals(t, spec.float_episodes)
+    sig_w, sig_gm, sig_f = spec.sigmas_m()
     if ideal:
-        err[:] = 0.0
+        err = np.zeros((n, 3))
+        outlier = np.zeros(n, dtype=bool)
+        jump = np.zeros((n, 3))
         is_float[:] = False
-        outlier[:] = False
-    pos = antenna_pos_n + err
-    lat, lon, h = geodesy.n_to_geodetic(pos[keep], origin)
-    sigma = np.where(is_float[:, None], np.hypot(sig, float_sig), np.hypot(sig, gm_sig))[keep]
+    else:
+        dt = _step_s(t, spec.rate_hz)
+        err = np.column_stack([noise.white(n, s, rng) for s in sig_w]) + _gm_columns(n, dt, sig_gm, spec.gm_tau_s, rng)
+        err += np.where(is_float[:, None], _gm_columns(n, dt, sig_f, spec.float_tau_s, rng), 0.0)
+        outlier = rng.random(n) < spec.outlier_fraction
+        direction = rng.standard_normal((n, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        jump = np.where(outlier[:, None], direction * rng.uniform(spec.outlier_min_m, spec.outlier_max_m, n)[:, None],
+                        0.0)
+        err += jump
+    lat, lon, h = geodesy.n_to_geodetic(truth[keep] + err[keep], origin)
+    var = sig_w**2 + sig_gm**2 + np.where(is_float[:, None], sig_f**2, 0.0)
     cov = np.zeros((int(keep.sum()), 3, 3))
-    cov[:, [0, 1, 2], [0, 1, 2]] = sigma**2
-    quality = np.where(is_float, 5, 4)[keep]
+    cov[:, [0, 1, 2], [0, 1, 2]] = var[keep]
+    quality = np.where(is_float, 5, 4)[keep].astype(np.int64)
+    k_err = err[keep]
     drawn = {"ideal": ideal, "outlier_times_s": t[outlier & keep].tolist(),
-             "float_times_s": t[is_float & keep].tolist(), "error_n_m_rms": np.sqrt((err[keep] ** 2).mean(0)).tolist()}
-    return GnssData(t[keep], lat, lon, h, cov, quality.astype(np.int64)), drawn
+             "outlier_offsets_n_m": jump[outlier & keep].tolist(),
+             "float_times_s": t[is_float & keep].tolist(), "error_n_m": k_err.tolist(),
+             "error_n_m_rms": (np.sqrt((k_err**2).mean(0)) if k_err.size else np.zeros(3)).tolist()}
+    return GnssData(t[keep], lat, lon, h, cov, quality), drawn
 
 
 # --- total stations -------------------------------------------------------------------------------
 
 class StationConfig(_Spec):
-    """One station: instrument point in ``n`` [m], nominal orientation [deg], and optionally fixed
-    errors (else drawn): tilt of the vertical axis [arcsec] (east, north), orientation error [arcsec],
-    clock offset [s] (t_station = t_imu + offset + drift t_imu) and drift [ppm]."""
+    """One station: ``pos_n_m`` instrument point (tilting axis) in ``n`` [m], or the ground mark when
+    ``instrument_height_m`` > 0; nominal ``orientation_deg`` (azimuth of the horizontal circle's zero,
+    clockwise from north); ``blocked`` intervals (IMU clock) with the line of sight obstructed; and
+    optionally fixed true errors (else drawn): ``tilt_arcsec`` (about east, about north),
+    ``orientation_error_arcsec``, ``clock_offset_s``, ``clock_drift_ppm``
+    (t_station = t_imu + offset + drift t_imu)."""
 
     id: str
     pos_n_m: tuple[float, float, float]
     orientation_deg: float = 0.0
+    instrument_height_m: float = Field(0.0, ge=0)
+    blocked: list[Interval] = []
     tilt_arcsec: tuple[float, float] | None = None
     orientation_error_arcsec: float | None = None
     clock_offset_s: float | None = None
@@ -175,19 +292,27 @@ class StationConfig(_Spec):
 
 class Handover(_Spec):
     """From the moment the trolley crosses ``at_chainage_m`` (after the previous hand-over), the prism
-    faces ``station`` (seed 003 figure 3). The first entry has no chainage: the start."""
+    faces ``station`` (seed 003 figure 3, "mirror rotating location"). The first entry has no
+    chainage: the station faced at the start."""
 
     station: str
     at_chainage_m: float | None = None
 
 
 class TotalStationSpec(_Spec):
-    """Robotic total stations tracking the trolley prism (seed 003 section 2.1.1: TS60, 0.5" angles,
-    3 mm + 1.5 ppm distances, vertical axes within 4" of each other)."""
+    """Robotic total stations tracking the trolley prism (seed 003 section 2.1.1: Leica TS60, 0.5"
+    angles, 3 mm + 1.5 ppm distances, about 10 Hz, vertical axes within 4" of each other, 2" set-up).
+
+    ``handover_gap_s``: after a hand-over the new station needs this long to find and lock on the
+    prism; ``handover_overlap_s``: the station handed over keeps tracking this long after the
+    hand-over (a 360-degree prism; 0 for the seed's one-sided prism, whose overlap is in chainage
+    only). ``min_range_m``/``max_range_m``: distance limits of tracking.
+    """
 
     stations: list[StationConfig] = Field(min_length=1)
     handover: list[Handover] = Field(min_length=1)
     handover_gap_s: float = Field(4.0, ge=0)
+    handover_overlap_s: float = Field(0.0, ge=0)
     rate_hz: float = Field(10.0, gt=0)
     angle_sigma_arcsec: float = Field(0.5, ge=0)
     distance_sigma_mm: float = Field(3.0, ge=0)
@@ -196,99 +321,188 @@ class TotalStationSpec(_Spec):
     orientation_sigma_arcsec: float = Field(2.0, ge=0)
     max_clock_offset_s: float = Field(5.0, ge=0)
     clock_drift_sigma_ppm: float = Field(1.0, ge=0)
+    min_range_m: float = Field(2.0, ge=0)
     max_range_m: float = Field(1000.0, gt=0)
     refraction_k: float = DEFAULT_REFRACTION_K
     prism_id: str = "P1"
 
+    @model_validator(mode="after")
+    def _consistent(self) -> "TotalStationSpec":
+        ids = [s.id for s in self.stations]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"station ids must be unique, got {ids}")
+        for k, h in enumerate(self.handover):
+            if h.station not in ids:
+                raise ValueError(f"handover[{k}].station {h.station!r} is not one of the stations {ids}")
+            if (k == 0) != (h.at_chainage_m is None):
+                raise ValueError("handover: the first entry has no at_chainage_m, every later one needs it")
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError("max_range_m must be > min_range_m")
+        return self
 
-def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handover]) -> dict[str, list]:
-    """IMU-time intervals during which the prism faces each station, from the hand-over list."""
-    out: dict[str, list] = {}
-    start_idx = 0
+
+PrismTruth = Union[Callable[[np.ndarray], np.ndarray], np.ndarray]
+
+
+def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handover]) -> list[tuple[str, float, float]]:
+    """(station, t_start, t_end) [s, IMU clock] during which the prism faces each station, in order.
+
+    Each hand-over happens at the first truth epoch at which the chainage has crossed (or reached)
+    ``at_chainage_m`` after the previous hand-over; hand-overs never reached are dropped.
+    """
+    start = 0
     bounds = []
     for h in handover[1:]:
-        s_rel = chainage[start_idx:] - h.at_chainage_m
-        cross = np.flatnonzero(np.sign(s_rel[1:]) != np.sign(s_rel[:-1]))
+        rel = chainage[start:] - h.at_chainage_m
+        cross = np.flatnonzero((np.sign(rel[1:]) != np.sign(rel[:-1])) | (rel[1:] == 0))
         if cross.size == 0:
             break
-        start_idx += int(cross[0]) + 1
-        bounds.append(start_idx)
+        start += int(cross[0]) + 1
+        bounds.append(start)
     edges = [0] + bounds + [t.size - 1]
-    for h, a, b in zip(handover, edges[:-1], edges[1:]):
-        out.setdefault(h.station, []).append((float(t[a]), float(t[b])))
+    return [(h.station, float(t[a]), float(t[b])) for h, a, b in zip(handover, edges[:-1], edges[1:])]
+
+
+def _station_epochs(intervals: list[tuple[float, float]], rate_hz: float, offset_s: float,
+                    drift_ppm: float) -> np.ndarray:
+    """IMU times (K,) of a station's samples: the regular grid k / rate_hz of its own clock inside the
+    given IMU-clock intervals (merged where they touch or overlap)."""
+    out = [np.zeros(0)]
+    for a, b in _merge(intervals):
+        st_a, st_b = (np.array([a, b]) * (1.0 + drift_ppm * 1e-6) + offset_s) * rate_hz
+        k = np.arange(np.ceil(st_a), np.floor(st_b) + 1)
+        t = (k / rate_hz - offset_s) / (1.0 + drift_ppm * 1e-6)
+        out.append(t[(t >= a) & (t <= b)])  # guard against rounding at the ends
+    return np.concatenate(out)
+
+
+def _merge(intervals: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Union of closed intervals, sorted; empty ones (end < start) dropped."""
+    merged: list[list[float]] = []
+    for a, b in sorted(iv for iv in intervals if iv[1] >= iv[0]):
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    return [(a, b) for a, b in merged]
+
+
+def _tracking_intervals(facing: list[tuple[str, float, float]], station_id: str, spec: TotalStationSpec,
+                        t_end_s: float) -> list[tuple[float, float]]:
+    """IMU-time intervals tracked by one station: its facing intervals, less ``handover_gap_s`` at a
+    hand-over start (not at the run start), plus ``handover_overlap_s`` after a hand-over away."""
+    out = []
+    for k, (sid, a, b) in enumerate(facing):
+        if sid != station_id:
+            continue
+        a = a + (spec.handover_gap_s if k > 0 else 0.0)
+        b = min(b + (spec.handover_overlap_s if k < len(facing) - 1 else 0.0), t_end_s)
+        if b >= a:
+            out.append((a, b))
     return out
 
 
-def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray,
-                            prism_pos_at: Callable[[np.ndarray], np.ndarray], origin: geodesy.Origin,
-                            spec: TotalStationSpec, rng: np.random.Generator, ideal: bool = False
-                            ) -> tuple[dict[str, TotalStationData], dict]:
-    """Polar observations of the prism by every station.
+def _prism_callable(t_truth: np.ndarray, prism_pos_n: PrismTruth) -> Callable[[np.ndarray], np.ndarray]:
+    """The prism truth as a callable of IMU time: as given, or a cubic spline through (M, 3) samples."""
+    if callable(prism_pos_n):
+        return prism_pos_n
+    pos = _series(prism_pos_n, t_truth.size, "total_stations", "prism_pos_n", 3)
+    return CubicSpline(t_truth, pos, axis=0)
 
-    t_truth_s, chainage_m: (M,) truth times [s, IMU clock] and chainage, to place the hand-overs;
-    prism_pos_at: callable mapping IMU times (K,) to exact prism positions (K, 3) in ``n``.
-    Returns observations per station (on each station's clock) and the drawn errors, including
-    ``stations: {id: {"clock_offset_s", "clock_drift_ppm", "tilt_arcsec", "orientation_error_arcsec"}}``.
+
+def _draw_station_errors(st: StationConfig, spec: TotalStationSpec, rng: np.random.Generator,
+                         ideal: bool) -> tuple[np.ndarray, float, float, float]:
+    """(tilt (2,) [arcsec], orientation error [arcsec], clock offset [s], clock drift [ppm]); fixed
+    values of the config win over draws; all zero when ideal. Draws happen in a fixed order."""
+    mag, ang = rng.uniform(0.0, spec.max_tilt_arcsec), rng.uniform(0.0, 2 * np.pi)
+    draws = (mag * np.array([np.cos(ang), np.sin(ang)]), rng.standard_normal() * spec.orientation_sigma_arcsec,
+             rng.uniform(-spec.max_clock_offset_s, spec.max_clock_offset_s),
+             rng.standard_normal() * spec.clock_drift_sigma_ppm)
+    if ideal:
+        return np.zeros(2), 0.0, 0.0, 0.0
+    fixed = (st.tilt_arcsec, st.orientation_error_arcsec, st.clock_offset_s, st.clock_drift_ppm)
+    tilt, orient, offset, drift = (d if f is None else f for f, d in zip(fixed, draws))
+    return np.asarray(tilt, dtype=float), float(orient), float(offset), float(drift)
+
+
+def true_station_setup(st: StationConfig, tilt_arcsec, orientation_error_arcsec: float) -> StationSetup:
+    """The true :class:`StationSetup` of a station config with its (drawn) tilt and orientation error."""
+    return StationSetup(st.id, tuple(float(x) for x in st.pos_n_m),
+                        float(np.radians(st.orientation_deg) + orientation_error_arcsec * ARCSEC),
+                        tuple(float(x) * ARCSEC for x in tilt_arcsec), st.instrument_height_m)
+
+
+def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism_pos_n: PrismTruth,
+                            origin: geodesy.Origin, spec: TotalStationSpec, rng: np.random.Generator,
+                            ideal: bool = False) -> tuple[dict[str, TotalStationData], dict]:
+    """Polar observations of the trolley prism by every station of ``spec.stations``.
+
+    t_truth_s, chainage_m: (M,) truth epochs [s, IMU clock] and the trolley's chainage [m] there
+    (places the hand-overs; sample densely, e.g. 20 Hz). prism_pos_n: the exact prism position in
+    ``n`` as a callable mapping IMU times (K,) to (K, 3) [m], or an (M, 3) array at ``t_truth_s``
+    that is interpolated by a cubic spline (truth at >= 20 Hz keeps the spline error below
+    0.01 mm for trolley motion). Each station samples at ``rate_hz`` on its *own* clock
+    (``t_station = t_imu + offset + drift t_imu``) while the prism faces it and it is within range
+    and line of sight. Returns {station id: observations (station clock)} and the drawn errors
+    ``{"stations": {id: {"clock_offset_s", "clock_drift_ppm", "tilt_arcsec", "tilt_magnitude_arcsec",
+    "tilt_lean_azimuth_deg", "orientation_error_arcsec", "orientation_rad", "pos_n_m",
+    "instrument_height_m", "tracking_intervals_s", "observations", "angle_noise_rms_arcsec",
+    "distance_noise_rms_mm"}}, "refraction_k"}``; ``orientation_rad`` is the true orientation.
     """
-    facing = _facing_intervals(t_truth_s, chainage_m, spec.handover)
+    t_truth = _times(t_truth_s, "total_stations")
+    chainage = _series(chainage_m, t_truth.size, "total_stations", "chainage_m")
+    prism_at = _prism_callable(t_truth, prism_pos_n)
+    facing = _facing_intervals(t_truth, chainage, spec.handover)
     data: dict[str, TotalStationData] = {}
     drawn: dict[str, dict] = {}
     for st in spec.stations:
-        tilt = np.zeros(2) if ideal else (
-            np.array(st.tilt_arcsec) if st.tilt_arcsec is not None else
-            _random_tilt(spec.max_tilt_arcsec, rng))
-        orient_err = 0.0 if ideal else (st.orientation_error_arcsec if st.orientation_error_arcsec is not None
-                                        else rng.standard_normal() * spec.orientation_sigma_arcsec)
-        offset = 0.0 if ideal else (st.clock_offset_s if st.clock_offset_s is not None
-                                    else rng.uniform(-spec.max_clock_offset_s, spec.max_clock_offset_s))
-        drift = 0.0 if ideal else (st.clock_drift_ppm if st.clock_drift_ppm is not None
-                                   else rng.standard_normal() * spec.clock_drift_sigma_ppm)
-        setup = StationSetup(st.id, st.pos_n_m, np.radians(st.orientation_deg) + orient_err * ARCSEC,
-                             tuple(tilt * ARCSEC))
-        t_imu = _station_epochs(facing.get(st.id, []), spec, offset, drift)
-        prism = prism_pos_at(t_imu) if t_imu.size else np.zeros((0, 3))
-        hz, zen, dist = n_to_polar(prism, setup, origin, spec.refraction_k) if t_imu.size else (t_imu,) * 3
-        in_range = dist <= spec.max_range_m
-        t_imu, hz, zen, dist = t_imu[in_range], hz[in_range], zen[in_range], dist[in_range]
-        if not ideal:
-            hz = np.mod(hz + noise.white(hz.size, spec.angle_sigma_arcsec * ARCSEC, rng), 2 * np.pi)
-            zen = zen + noise.white(zen.size, spec.angle_sigma_arcsec * ARCSEC, rng)
-            dist = dist + rng.standard_normal(dist.size) * (spec.distance_sigma_mm * 1e-3
-                                                            + spec.distance_ppm * 1e-6 * dist)
-        t_station = t_imu + offset + drift * 1e-6 * t_imu
-        data[st.id] = TotalStationData(st.id, t_station, hz, zen, dist, np.full(t_imu.size, spec.prism_id, dtype=object))
-        drawn[st.id] = {"clock_offset_s": float(offset), "clock_drift_ppm": float(drift),
-                        "tilt_arcsec": [float(x) for x in tilt], "orientation_error_arcsec": float(orient_err),
-                        "orientation_rad": float(setup.orientation_rad), "pos_n_m": list(st.pos_n_m),
-                        "facing_intervals_s": facing.get(st.id, []), "observations": int(t_imu.size)}
+        tilt, orient_err, offset, drift = _draw_station_errors(st, spec, rng, ideal)
+        setup = true_station_setup(st, tilt, orient_err)
+        tracked = _tracking_intervals(facing, st.id, spec, float(t_truth[-1]))
+        t_imu = _station_epochs(tracked, spec.rate_hz, offset, drift)
+        t_imu = t_imu[~_in_intervals(t_imu, st.blocked)]
+        prism = np.asarray(prism_at(t_imu), dtype=float).reshape(-1, 3) if t_imu.size else np.zeros((0, 3))
+        hz, zen, dist = n_to_polar(prism, setup, origin, spec.refraction_k)
+        ok = (dist >= spec.min_range_m) & (dist <= spec.max_range_m)
+        t_imu, hz, zen, dist = t_imu[ok], hz[ok], zen[ok], dist[ok]
+        e_hz, e_zen, e_dist = _polar_noise(dist, spec, rng, ideal)
+        data[st.id] = TotalStationData(st.id, t_imu + offset + drift * 1e-6 * t_imu,
+                                       np.mod(hz + e_hz, 2 * np.pi), zen + e_zen, dist + e_dist,
+                                       np.full(t_imu.size, spec.prism_id, dtype=object))
+        drawn[st.id] = {
+            "clock_offset_s": offset, "clock_drift_ppm": drift, "tilt_arcsec": [float(x) for x in tilt],
+            "tilt_magnitude_arcsec": float(np.hypot(*tilt)),
+            "tilt_lean_azimuth_deg": float(np.degrees(np.arctan2(tilt[1], -tilt[0])) % 360.0),
+            "orientation_error_arcsec": orient_err, "orientation_rad": float(setup.orientation_rad),
+            "pos_n_m": [float(x) for x in st.pos_n_m], "instrument_height_m": st.instrument_height_m,
+            "tracking_intervals_s": [list(iv) for iv in tracked], "observations": int(t_imu.size),
+            "angle_noise_rms_arcsec": _rms(np.concatenate([e_hz, e_zen])) / ARCSEC,
+            "distance_noise_rms_mm": _rms(e_dist) * 1e3}
     return data, {"stations": drawn, "refraction_k": spec.refraction_k}
 
 
-def _random_tilt(max_arcsec: float, rng: np.random.Generator) -> np.ndarray:
-    """A tilt of uniform magnitude in [0, max] and uniform direction, (east, north) [arcsec]."""
-    mag, ang = rng.uniform(0.0, max_arcsec), rng.uniform(0.0, 2 * np.pi)
-    return mag * np.array([np.cos(ang), np.sin(ang)])
+def _polar_noise(dist_m: np.ndarray, spec: TotalStationSpec, rng: np.random.Generator,
+                 ideal: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """White noise (K,) of hz, zenith [rad] and distance [m] (``distance_sigma_mm`` + ``distance_ppm`` d)."""
+    if ideal:
+        z = np.zeros(dist_m.size)
+        return z, z.copy(), z.copy()
+    sig_a = spec.angle_sigma_arcsec * ARCSEC
+    sig_d = spec.distance_sigma_mm * 1e-3 + spec.distance_ppm * 1e-6 * dist_m
+    return (noise.white(dist_m.size, sig_a, rng), noise.white(dist_m.size, sig_a, rng),
+            rng.standard_normal(dist_m.size) * sig_d)
 
 
-def _station_epochs(intervals: list, spec: TotalStationSpec, offset_s: float, drift_ppm: float) -> np.ndarray:
-    """IMU times of the station's samples: a regular grid on the station clock inside the facing
-    intervals, leaving ``handover_gap_s`` at each start for turning the prism and locking on."""
-    out = []
-    for a, b in intervals:
-        # station clock: t_st = t (1 + drift) + offset; a regular grid of it
-        st_a = a * (1 + drift_ppm * 1e-6) + offset_s + spec.handover_gap_s
-        st_b = b * (1 + drift_ppm * 1e-6) + offset_s
-        if st_b <= st_a:
-            continue
-        grid = np.ceil(st_a * spec.rate_hz) / spec.rate_hz + np.arange(int((st_b - st_a) * spec.rate_hz)) / spec.rate_hz
-        out.append((grid - offset_s) / (1 + drift_ppm * 1e-6))
-    return np.concatenate(out) if out else np.zeros(0)
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(x**2))) if x.size else 0.0
 
 
 # --- inclinometer and gauge ---------------------------------------------------------------------------
 
 class InclinometerSpec(_Spec):
-    """Two-axis inclinometer: first-order response ``time_constant_s``, white noise, constant bias."""
+    """Two-axis inclinometer (seed 004: good static, slow dynamic response): first-order lag
+    ``time_constant_s`` (0: none), white noise ``sigma_arcsec``, constant bias per axis drawn with
+    1-sigma ``bias_arcsec``."""
 
     rate_hz: float = Field(50.0, gt=0)
     time_constant_s: float = Field(0.5, ge=0)
@@ -296,25 +510,35 @@ class InclinometerSpec(_Spec):
     bias_arcsec: float = Field(10.0, ge=0)
 
 
+def first_order_lag(x: np.ndarray, dt_s: float, tau_s: float) -> np.ndarray:
+    """Response (N,) of ``tau dy/dt = x - y`` to samples ``x`` (N,) ``dt_s`` apart, starting at rest at
+    ``x[0]``: ``y_k = a y_{k-1} + (1 - a) x_k`` with ``a = exp(-dt / tau)`` (``tau_s`` = 0: ``y = x``)."""
+    x = np.asarray(x, dtype=float)
+    if tau_s <= 0 or x.size == 0:
+        return x.copy()
+    a = np.exp(-dt_s / tau_s)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]])
+    return y
+
+
 def simulate_inclinometer(t_s, roll_rad, pitch_rad, spec: InclinometerSpec, rng: np.random.Generator,
                           ideal: bool = False) -> tuple[InclinometerData, dict]:
-    """Inclinometer readings at ``t_s`` (N,) of the true roll and pitch (N,) [rad] (w.r.t. the plumb line)."""
-    t = np.asarray(t_s, dtype=float)
+    """Inclinometer readings at the (regular) epochs ``t_s`` (N,) [s] of the true roll and pitch (N,)
+    [rad] against the local plumb line: lag, then bias and white noise. Drawn: ``bias_rad``
+    [roll, pitch]."""
+    t = _times(t_s, "inclinometer")
+    angles = [_series(x, t.size, "inclinometer", f) for x, f in ((roll_rad, "roll_rad"), (pitch_rad, "pitch_rad"))]
     if ideal:
-        return InclinometerData(t, np.array(roll_rad, float), np.array(pitch_rad, float)), {"ideal": True}
+        return InclinometerData(t, angles[0].copy(), angles[1].copy()), {"ideal": True, "bias_rad": [0.0, 0.0]}
+    dt = _step_s(t, spec.rate_hz)
     bias = rng.standard_normal(2) * spec.bias_arcsec * ARCSEC
-    out = []
-    for k, x in enumerate((roll_rad, pitch_rad)):
-        x = np.asarray(x, dtype=float)
-        if spec.time_constant_s > 0:
-            a = np.exp(-1.0 / (spec.rate_hz * spec.time_constant_s))
-            x = lfilter([1 - a], [1, -a], x - x[0]) + x[0]
-        out.append(x + bias[k] + noise.white(t.size, spec.sigma_arcsec * ARCSEC, rng))
-    return InclinometerData(t, out[0], out[1]), {"bias_rad": bias.tolist()}
+    out = [first_order_lag(x, dt, spec.time_constant_s) + b + noise.white(t.size, spec.sigma_arcsec * ARCSEC, rng)
+           for x, b in zip(angles, bias)]
+    return InclinometerData(t, out[0], out[1]), {"ideal": False, "bias_rad": bias.tolist()}
 
 
 class GaugeSpec(_Spec):
-    """Gauge sensor: white noise and a constant bias [mm]."""
+    """Gauge sensor: white noise ``sigma_mm`` and a constant bias drawn with 1-sigma ``bias_mm``."""
 
     rate_hz: float = Field(50.0, gt=0)
     sigma_mm: float = Field(0.1, ge=0)
@@ -323,10 +547,11 @@ class GaugeSpec(_Spec):
 
 def simulate_gauge(t_s, gauge_m, spec: GaugeSpec, rng: np.random.Generator, ideal: bool = False
                    ) -> tuple[GaugeData, dict]:
-    """Gauge readings at ``t_s`` (N,) of the true gauge (N,) [m]."""
-    t = np.asarray(t_s, dtype=float)
+    """Gauge readings at ``t_s`` (N,) [s] of the true gauge (N,) [m]. Drawn: ``bias_m``."""
+    t = _times(t_s, "gauge")
+    g = _series(gauge_m, t.size, "gauge", "gauge_m")
     if ideal:
-        return GaugeData(t, np.array(gauge_m, float)), {"ideal": True}
+        return GaugeData(t, g.copy()), {"ideal": True, "bias_m": 0.0}
     bias = rng.standard_normal() * spec.bias_mm * 1e-3
-    return GaugeData(t, np.asarray(gauge_m, float) + bias + noise.white(t.size, spec.sigma_mm * 1e-3, rng)), \
-        {"bias_m": float(bias)}
+    return GaugeData(t, g + bias + noise.white(t.size, spec.sigma_mm * 1e-3, rng)), {"ideal": False,
+                                                                                   "bias_m": float(bias)}
