@@ -1,356 +1,1072 @@
-"""The raw survey log: MCAP files with JSON-encoded messages (docs/log_format.md).
+"""The raw survey log: one MCAP file per run, JSON-encoded messages (docs/log_format.md).
 
-``write_log`` writes a :class:`SensorLog` (atomically, byte-identical for identical
-input); ``read_log`` reads one back and checks every record: known topic and
-schema, decodable JSON with the schema's fields, finite numbers, and
-``log_time`` strictly increasing per topic. The first bad record raises a
-:class:`SensorDataError` of one line naming the file, topic and record index
-(0-based within its topic). A truncated or corrupt file raises an error that
-says how many messages were readable; ``allow_truncated=True`` returns that
-readable part instead. ``inspect_log`` summarises a log.
+- :func:`write_log` writes a :class:`SensorLog` atomically and byte-identically
+  for identical input (zstd chunks, full MCAP index and summary).
+- :func:`read_log` reads one back and checks every record: known topic and
+  schema, message encoding ``json``, decodable JSON with the schema's fields,
+  finite numbers, ``log_time`` strictly increasing per topic. The first bad
+  record raises a :class:`SensorDataError` of one line naming the file, topic
+  and record index (0-based within its topic). A truncated or corrupt file
+  raises an error that says how many records were readable;
+  ``allow_truncated=True`` returns that readable prefix instead.
+- :func:`inspect_log` summarises a log per topic (:class:`LogSummary`).
 
 ``log_time`` is integer nanoseconds of the recording sensor's clock:
-``round(t_s * 1e9)``; reading gives ``t_s = log_time / 1e9``.
+``round(t_s * 1e9)``; reading gives ``t_s = log_time / 1e9`` (so times are
+quantised to 1 ns; values round-trip bit-exactly).
+
+Both directions are vectorised: messages are formatted with one printf
+template per schema and parsed, when they are in trackfusion's canonical text
+layout, by one C-level number parse per topic; other valid JSON layouts take
+the general ``json`` path with identical checks.
 """
 
 from __future__ import annotations
 
 import io
+import itertools
 import json
+import mmap
+import operator
+import struct
+import warnings
+import zlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Iterable
 
 import numpy as np
-from mcap.records import Channel, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex, Schema, Statistics,
+                          SummaryOffset)
 
+from .. import __version__
 from ..errors import SensorDataError
 from . import schemas
 from .fileio import atomic_path
 from .types import GaugeData, GnssData, ImuData, InclinometerData, OdometerData, SensorLog, TotalStationData
 
-LIBRARY = "trackfusion"
-_GNSS_FRAME = "gnss_antenna"
+MAGIC = b"\x89MCAP0\r\n"
+LIBRARY = f"trackfusion/{__version__}"
+CHUNK_SIZE_BYTES = 4 * 1024 * 1024
+ZSTD_LEVEL = 3
+_MAX_CHUNK_BYTES = 1 << 30  # refuse to inflate a chunk that claims more than 1 GiB
 
-# --- writing ---------------------------------------------------------------------------------------
+# MCAP opcodes
+_HEADER, _FOOTER, _SCHEMA, _CHANNEL, _MESSAGE, _CHUNK, _MESSAGE_INDEX, _CHUNK_INDEX = 1, 2, 3, 4, 5, 6, 7, 8
+_STATISTICS, _METADATA, _METADATA_INDEX, _SUMMARY_OFFSET, _DATA_END = 11, 12, 13, 14, 15
+_RECORD_NAMES = {1: "header", 2: "footer", 3: "schema", 4: "channel", 5: "message", 6: "chunk", 7: "message index",
+                 8: "chunk index", 9: "attachment", 10: "attachment index", 11: "statistics", 12: "metadata",
+                 13: "metadata index", 14: "summary offset", 15: "data end"}
 
-_IMU_T = ('{"angular_velocity":{"x":%r,"y":%r,"z":%r},'
-          '"linear_acceleration":{"x":%r,"y":%r,"z":%r}}')
-_ODO_T = '{"distance_m":%r,"ticks":%d}'
-_GNSS_T = ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"' + _GNSS_FRAME + '","latitude":%r,"longitude":%r,'
-           '"altitude":%r,"position_covariance":[%r,%r,%r,%r,%r,%r,%r,%r,%r],'
-           '"position_covariance_type":3,"fix_quality":%d}')
-_INC_T = '{"roll_rad":%r,"pitch_rad":%r}'
-_GAUGE_T = '{"gauge_m":%r}'
-
-
-def _ns(t_s: np.ndarray) -> np.ndarray:
-    return np.rint(np.asarray(t_s, dtype=float) * 1e9).astype(np.int64)
-
-
-def _rows(*cols) -> list[tuple]:
-    """Python-native rows (floats stay floats so ``%r`` gives their shortest exact repr)."""
-    return list(zip(*[np.asarray(c).tolist() for c in cols]))
+#: Packed header of a Message record: opcode, record length, channel, sequence, log/publish time (31 bytes).
+_MSG_HEADER = np.dtype([("op", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"),
+                        ("log_time", "<u8"), ("publish_time", "<u8")])
+_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+_RECORD_HEAD = struct.Struct("<BQ")
+_INT64_MAX = np.iinfo(np.int64).max
 
 
-def _check_finite(name: str, *arrays) -> None:
-    for a in arrays:
-        if not np.all(np.isfinite(np.asarray(a, dtype=float))):
-            raise SensorDataError(f"cannot write {name}: non-finite value")
+# =================================================================================================
+# writing
+# =================================================================================================
+
+@dataclass
+class _Stream:
+    """One channel to write: ``log_time_ns`` (N,) int64 and N JSON payloads (ASCII str)."""
+
+    topic: str
+    schema: str
+    log_time_ns: np.ndarray
+    payloads: list[str]
 
 
-def _payloads(log: SensorLog) -> list[tuple[str, str, np.ndarray, list[str]]]:
-    """(topic, schema, log_time_ns (N,), JSON payloads) for every sensor present."""
-    out = []
-    if log.imu is not None:
-        d = log.imu
-        _check_finite("/imu", d.t_s, d.gyro_radps, d.accel_mps2)
-        out.append(("/imu", "trackfusion.Imu", _ns(d.t_s),
-                    [_IMU_T % r for r in _rows(*d.gyro_radps.T, *d.accel_mps2.T)]))
-    if log.odometer is not None:
-        d = log.odometer
-        _check_finite("/odometer", d.t_s, d.distance_m)
-        out.append(("/odometer", "trackfusion.Odometer", _ns(d.t_s),
-                    [_ODO_T % r for r in _rows(d.distance_m, d.ticks.astype(np.int64))]))
-    if log.gnss is not None:
-        d = log.gnss
-        _check_finite("/gnss", d.t_s, d.lat_deg, d.lon_deg, d.h_m, d.cov_enu_m2)
-        ns = _ns(d.t_s)
-        cov = d.cov_enu_m2.reshape(-1, 9)
-        out.append(("/gnss", "foxglove.LocationFix", ns,
-                    [_GNSS_T % r for r in _rows(ns // 10**9, ns % 10**9, d.lat_deg, d.lon_deg, d.h_m,
-                                                 *cov.T, d.fix_quality.astype(np.int64))]))
-    for sid in sorted(log.total_stations):
-        d = log.total_stations[sid]
-        topic = schemas.TOTAL_STATION_PREFIX + sid
-        _check_finite(topic, d.t_s, d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m)
-        payloads = [json.dumps({"horizontal_angle_rad": h, "zenith_angle_rad": z, "slope_distance_m": s,
-                                "prism_id": str(p)}, separators=(",", ":"))
-                    for h, z, s, p in _rows(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m,
-                                            d.prism_id)]
-        out.append((topic, schemas.TOTAL_STATION_SCHEMA, _ns(d.t_s), payloads))
-    if log.inclinometer is not None:
-        d = log.inclinometer
-        _check_finite("/inclinometer", d.t_s, d.roll_rad, d.pitch_rad)
-        out.append(("/inclinometer", "trackfusion.Inclination", _ns(d.t_s), [_INC_T % r for r in _rows(d.roll_rad, d.pitch_rad)]))
-    if log.gauge is not None:
-        d = log.gauge
-        _check_finite("/gauge", d.t_s, d.gauge_m)
-        out.append(("/gauge", "trackfusion.Gauge", _ns(d.t_s), [_GAUGE_T % r for r in _rows(d.gauge_m)]))
+def _fail(topic: str, reason: str) -> SensorDataError:
+    return SensorDataError(f"cannot write {topic}: {reason}")
+
+
+def _log_time_ns(topic: str, t_s: np.ndarray) -> np.ndarray:
+    """Integer nanoseconds (N,) of ``t_s`` (N,) [s]; must be finite, >= 0 and strictly increasing."""
+    t = np.asarray(t_s, dtype=float)
+    if t.ndim != 1:
+        raise _fail(topic, f"t_s must be 1-D, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise _fail(topic, f"t_s[{int(np.flatnonzero(~np.isfinite(t))[0])}] is not finite")
+    if t.size and (t.min() < 0 or t.max() > 9.2e9):
+        raise _fail(topic, "t_s outside [0, 9.2e9] s (MCAP log_time is unsigned nanoseconds)")
+    ns = np.rint(t * 1e9).astype(np.int64)
+    bad = np.flatnonzero(np.diff(ns) <= 0)
+    if bad.size:
+        raise _fail(topic, f"t_s not strictly increasing at sample {int(bad[0]) + 1} (after rounding to 1 ns)")
+    return ns
+
+
+def _columns(topic: str, n: int, named: Iterable[tuple[str, Any, tuple[int, ...]]]) -> list[list]:
+    """Check shapes and finiteness; return per value a Python list (floats stay floats for ``%r``).
+
+    named: (name, array, trailing shape); each array must have shape (n, *trailing shape).
+    """
+    out: list[list] = []
+    for name, values, trailing in named:
+        a = np.asarray(values)
+        if a.shape != (n, *trailing):
+            raise _fail(topic, f"{name} has shape {a.shape}, expected {(n, *trailing)}")
+        if a.dtype.kind not in "fiub":
+            raise _fail(topic, f"{name} must be numeric, got dtype {a.dtype}")
+        flat = a.reshape(n, int(np.prod(trailing, dtype=int)))
+        bad = ~np.isfinite(flat).all(axis=1) if a.dtype.kind == "f" else np.zeros(n, bool)
+        if bad.any():
+            raise _fail(topic, f"{name} sample {int(np.argmax(bad))} is not finite")
+        as_type = np.float64 if a.dtype.kind == "f" else np.int64
+        out.extend(flat[:, j].astype(as_type).tolist() for j in range(flat.shape[1]))
     return out
 
 
+def _format(schema: str, columns: list[list]) -> list[str]:
+    """Payloads: one printf of the schema's canonical template per message (vectorised via map)."""
+    return list(map(schemas.CANONICAL[schema].template.__mod__, zip(*columns)))
+
+
+def _streams(log: SensorLog) -> list[_Stream]:
+    """Every sensor present, in channel order, checked and formatted."""
+    out: list[_Stream] = []
+    if log.imu is not None:
+        d, topic = log.imu, "/imu"
+        ns = _log_time_ns(topic, d.t_s)
+        cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
+        out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
+    if log.odometer is not None:
+        d, topic = log.odometer, "/odometer"
+        ns = _log_time_ns(topic, d.t_s)
+        cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
+        if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
+            raise _fail(topic, "ticks must be integers")
+        out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
+    if log.gnss is not None:
+        d, topic = log.gnss, "/gnss"
+        ns = _log_time_ns(topic, d.t_s)
+        n = ns.size
+        cols = [(ns // 10**9).tolist(), (ns % 10**9).tolist()] + _columns(topic, n, [
+            ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
+            ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
+        out.append(_Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols)))
+    for sid in sorted(log.total_stations):
+        d = log.total_stations[sid]
+        topic = schemas.TOTAL_STATION_PREFIX + sid
+        if not sid or "/" in sid:
+            raise _fail(topic, "station id must be a non-empty name without '/'")
+        ns = _log_time_ns(topic, d.t_s)
+        cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
+                                         ("zenith_angle_rad", d.zenith_angle_rad, ()),
+                                         ("slope_distance_m", d.slope_distance_m, ())])
+        prism = np.asarray(d.prism_id, dtype=object)
+        if prism.shape != (ns.size,):
+            raise _fail(topic, f"prism_id has shape {prism.shape}, expected {(ns.size,)}")
+        cols.append([json.dumps(str(p)) for p in prism.tolist()])
+        out.append(_Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols)))
+    if log.inclinometer is not None:
+        d, topic = log.inclinometer, "/inclinometer"
+        ns = _log_time_ns(topic, d.t_s)
+        cols = _columns(topic, ns.size, [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())])
+        out.append(_Stream(topic, schemas.INCLINATION, ns, _format(schemas.INCLINATION, cols)))
+    if log.gauge is not None:
+        d, topic = log.gauge, "/gauge"
+        ns = _log_time_ns(topic, d.t_s)
+        cols = _columns(topic, ns.size, [("gauge_m", d.gauge_m, ())])
+        out.append(_Stream(topic, schemas.GAUGE, ns, _format(schemas.GAUGE, cols)))
+    return out
+
+
+def _metadata_records(metadata: dict[str, Any]) -> list[tuple[str, dict[str, str]]]:
+    """(record name, {"json": text}) sorted by name; the text has sorted keys and no NaN."""
+
+    def plain(obj):
+        if hasattr(obj, "tolist"):
+            return obj.tolist()
+        raise TypeError(f"{type(obj).__name__} is not JSON-serialisable")
+
+    out = []
+    for name in sorted(metadata):
+        if not isinstance(name, str) or not name:
+            raise SensorDataError(f"cannot write metadata: record name {name!r} is not a non-empty string")
+        try:
+            text = json.dumps(metadata[name], sort_keys=True, allow_nan=False, separators=(",", ":"), default=plain)
+        except (TypeError, ValueError) as exc:
+            raise SensorDataError(f"cannot write metadata {name!r}: {exc}") from None
+        out.append((name, {"json": text}))
+    return out
+
+
+def _record(rec) -> bytes:
+    """Serialise one small MCAP record with the mcap library's own record writer."""
+    builder = RecordBuilder()
+    rec.write(builder)
+    return builder.end()
+
+
+@dataclass
+class _Merged:
+    """All messages in file order: channel id, log_time [ns], sequence (M,) and payloads (M)."""
+
+    channel: np.ndarray
+    log_time_ns: np.ndarray
+    sequence: np.ndarray
+    payloads: list[str]
+
+
+def _merge(streams: list[_Stream]) -> _Merged:
+    """Interleave the channels in log_time order (ties: channel order); channel ids start at 1."""
+    if not streams:
+        return _Merged(np.zeros(0, np.uint16), np.zeros(0, np.int64), np.zeros(0, np.uint32), [])
+    chan = np.concatenate([np.full(s.log_time_ns.size, i + 1, np.uint16) for i, s in enumerate(streams)])
+    times = np.concatenate([s.log_time_ns for s in streams])
+    seq = np.concatenate([np.arange(s.log_time_ns.size, dtype=np.uint64) for s in streams]) % (1 << 32)
+    order = np.lexsort((chan, times))
+    payloads = list(itertools.chain.from_iterable(s.payloads for s in streams))
+    return _Merged(chan[order], times[order], seq[order].astype(np.uint32), [payloads[i] for i in order.tolist()])
+
+
+def _chunk_bounds(record_bytes: np.ndarray, target_bytes: int) -> list[tuple[int, int]]:
+    """[start, stop) message ranges: each chunk closes at the first message reaching target_bytes."""
+    cum = np.cumsum(record_bytes)
+    bounds, start = [], 0
+    while start < record_bytes.size:
+        base = cum[start - 1] if start else 0
+        stop = int(np.searchsorted(cum, base + target_bytes, side="left")) + 1
+        stop = min(max(stop, start + 1), record_bytes.size)
+        bounds.append((start, stop))
+        start = stop
+    return bounds
+
+
+def _chunk_records(m: _Merged, lengths: np.ndarray, start: int, stop: int) -> bytes:
+    """The uncompressed records of one chunk: 31-byte message headers interleaved with payloads."""
+    hdr = np.empty(stop - start, dtype=_MSG_HEADER)
+    hdr["op"] = _MESSAGE
+    hdr["length"] = lengths[start:stop] + 22
+    hdr["channel"] = m.channel[start:stop]
+    hdr["sequence"] = m.sequence[start:stop]
+    hdr["log_time"] = m.log_time_ns[start:stop]
+    hdr["publish_time"] = m.log_time_ns[start:stop]
+    text = hdr.tobytes().decode("latin-1")
+    parts: list[str] = [""] * (2 * (stop - start))
+    parts[0::2] = [text[i:i + 31] for i in range(0, len(text), 31)]
+    parts[1::2] = m.payloads[start:stop]
+    return "".join(parts).encode("latin-1")
+
+
+def _message_indexes(m: _Merged, lengths: np.ndarray, start: int, stop: int, chunk_end: int
+                     ) -> tuple[bytes, dict[int, int]]:
+    """MessageIndex records following a chunk (one per channel in it) and their file offsets."""
+    offsets = np.concatenate([[0], np.cumsum(lengths[start:stop] + 31)[:-1]]).astype(np.uint64)
+    chan = m.channel[start:stop]
+    out, where, pos = [], {}, chunk_end
+    for c in np.unique(chan).tolist():
+        sel = chan == c
+        entries = np.empty(int(sel.sum()), dtype=_INDEX_ENTRY)
+        entries["log_time"] = m.log_time_ns[start:stop][sel]
+        entries["offset"] = offsets[sel]
+        body = entries.tobytes()
+        rec = struct.pack("<BQHI", _MESSAGE_INDEX, 6 + len(body), c, len(body)) + body
+        where[c] = pos
+        pos += len(rec)
+        out.append(rec)
+    return b"".join(out), where
+
+
+class _Output:
+    """A file being written: tracks the byte position and the running CRC-32 of the data section."""
+
+    def __init__(self, fh):
+        self.fh, self.pos, self.crc = fh, 0, 0
+
+    def put(self, data: bytes, in_crc: bool = True) -> int:
+        """Write ``data``; returns the offset it was written at."""
+        at = self.pos
+        self.fh.write(data)
+        self.pos += len(data)
+        if in_crc:
+            self.crc = zlib.crc32(data, self.crc)
+        return at
+
+
+def _compress(data: bytes) -> bytes:
+    return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
+
+
+def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]]) -> None:
+    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer."""
+    out = _Output(fh)
+    out.put(MAGIC)
+    out.put(_record(Header(profile="", library=LIBRARY)))
+    schema_ids: dict[str, int] = {}
+    schema_recs, channel_recs = [], []
+    for s in streams:
+        if s.schema not in schema_ids:
+            schema_ids[s.schema] = len(schema_ids) + 1
+            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema",
+                                      data=schemas.schema_bytes(s.schema)))
+    for i, s in enumerate(streams):
+        channel_recs.append(Channel(id=i + 1, schema_id=schema_ids[s.schema], topic=s.topic,
+                                    message_encoding="json", metadata={}))
+    for rec in schema_recs + channel_recs:
+        out.put(_record(rec))
+    metadata_indexes = []
+    for name, data in metadata:
+        rec = _record(Metadata(name=name, metadata=data))
+        metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+
+    merged = _merge(streams)
+    lengths = np.fromiter(map(len, merged.payloads), dtype=np.int64, count=len(merged.payloads))
+    bounds = _chunk_bounds(lengths + 31, CHUNK_SIZE_BYTES)
+    chunk_indexes = []
+    with ThreadPoolExecutor(max_workers=2) as pool:  # zstd releases the GIL; results keep their order
+        raw_chunks = (_chunk_records(merged, lengths, a, b) for a, b in bounds)
+        pending = [(raw, pool.submit(_compress, raw)) for raw in raw_chunks]
+        for (a, b), (raw, future) in zip(bounds, pending):
+            comp = future.result()
+            t0, t1 = int(merged.log_time_ns[a:b].min()), int(merged.log_time_ns[a:b].max())
+            body = struct.pack("<QQQII", t0, t1, len(raw), zlib.crc32(raw), 4) + b"zstd" + struct.pack(
+                "<Q", len(comp))
+            head = _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp))
+            start = out.put(head + body)
+            out.put(comp)
+            index_bytes, index_at = _message_indexes(merged, lengths, a, b, out.pos)
+            out.put(index_bytes)
+            chunk_indexes.append(ChunkIndex(
+                message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
+                chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
+                message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
+                uncompressed_size=len(raw)))
+    out.put(_record(DataEnd(data_section_crc=out.crc)), in_crc=False)
+
+    counts = {i + 1: int(s.log_time_ns.size) for i, s in enumerate(streams)}
+    stats = Statistics(
+        message_count=len(merged.payloads), schema_count=len(schema_recs), channel_count=len(channel_recs),
+        attachment_count=0, metadata_count=len(metadata), chunk_count=len(bounds),
+        message_start_time=int(merged.log_time_ns.min()) if lengths.size else 0,
+        message_end_time=int(merged.log_time_ns.max()) if lengths.size else 0, channel_message_counts=counts)
+    groups = [(_SCHEMA, schema_recs), (_CHANNEL, channel_recs), (_STATISTICS, [stats]),
+              (_CHUNK_INDEX, chunk_indexes), (_METADATA_INDEX, metadata_indexes)]
+    summary_start = out.pos
+    summary, offsets = [], []
+    for opcode, recs in groups:
+        if recs:
+            blob = b"".join(_record(r) for r in recs)
+            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + sum(map(len, summary)),
+                                         group_length=len(blob)))
+            summary.append(blob)
+    summary_offset_start = summary_start + sum(map(len, summary))
+    summary.append(b"".join(_record(o) for o in offsets))
+    summary_blob = b"".join(summary)
+    footer_head = struct.pack("<BQQQ", _FOOTER, 20, summary_start, summary_offset_start)
+    summary_crc = zlib.crc32(footer_head, zlib.crc32(summary_blob))
+    out.put(summary_blob, in_crc=False)
+    out.put(_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
+                           summary_crc=summary_crc)), in_crc=False)
+    out.put(MAGIC, in_crc=False)
+
+
 def write_log(path: str | Path, log: SensorLog) -> None:
-    """Write ``log`` as an MCAP file (zstd chunks), atomically and deterministically.
+    """Write ``log`` to ``path`` as an MCAP raw log (docs/log_format.md).
 
-    Messages of all topics are interleaved in ``log_time`` order (ties: topic order).
-    Each ``log.metadata`` entry becomes a metadata record of that name holding
-    ``{"json": <the value as JSON text, keys sorted>}``.
+    Every sensor present (not None; total stations by id) becomes one channel; messages of
+    all channels are interleaved in ``log_time`` order (ties: channel order) in zstd chunks of
+    about 4 MiB, with message indexes, chunk indexes and a summary. Each ``log.metadata`` entry
+    becomes a metadata record of that name holding ``{"json": <the value as JSON text>}``.
+    The file appears atomically (temporary name, then rename) and is byte-identical for
+    identical input (no wall-clock time). Raises :class:`SensorDataError` for data the reader
+    would refuse (non-finite values, times not strictly increasing, wrong shapes).
     """
-    topics = _payloads(log)
+    streams = _streams(log)
+    metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        w = Writer(fh, compression=CompressionType.ZSTD, chunk_size=4 * 1024 * 1024)
-        w.start(profile="", library=LIBRARY)
-        schema_ids: dict[str, int] = {}
-        channels, times, payloads = [], [], []
-        for topic, schema, ns, data in topics:
-            if schema not in schema_ids:
-                schema_ids[schema] = w.register_schema(schema, "jsonschema", schemas.schema_bytes(schema))
-            cid = w.register_channel(topic, "json", schema_ids[schema])
-            channels.append(np.full(ns.size, cid, dtype=np.int64))
-            times.append(ns)
-            payloads.extend(data)
-        if times:
-            all_t = np.concatenate(times)
-            all_c = np.concatenate(channels)
-            order = np.lexsort((all_c, all_t))
-            counters: dict[int, int] = {}
-            for i, c, t in zip(order.tolist(), all_c[order].tolist(), all_t[order].tolist()):
-                seq = counters.get(c, 0)
-                counters[c] = seq + 1
-                w.add_message(c, log_time=t, data=payloads[i].encode(), publish_time=t, sequence=seq)
-        for name in sorted(log.metadata):
-            w.add_metadata(name, {"json": json.dumps(log.metadata[name], sort_keys=True, allow_nan=False)})
-        w.finish()
+        _write_mcap(fh, streams, metadata)
 
 
-# --- reading ---------------------------------------------------------------------------------------
+# =================================================================================================
+# reading: file structure
+# =================================================================================================
+
+class _Corrupt(Exception):
+    """Internal: the file structure is broken at ``at`` (byte offset)."""
+
+    def __init__(self, reason: str, at: int):
+        super().__init__(reason)
+        self.reason, self.at = reason, at
+
+
+class _Cursor:
+    """Bounds-checked little-endian reads from one record body (``base``: its file offset)."""
+
+    def __init__(self, data: bytes, base: int):
+        self.data, self.pos, self.base = data, 0, base
+
+    def take(self, fmt: str):
+        size = struct.calcsize(fmt)
+        if self.pos + size > len(self.data):
+            raise _Corrupt("record shorter than its fields", self.base + self.pos)
+        values = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += size
+        return values if len(values) > 1 else values[0]
+
+    def raw(self, size: int) -> bytes:
+        if size < 0 or self.pos + size > len(self.data):
+            raise _Corrupt("field length beyond its record", self.base + self.pos)
+        out = self.data[self.pos:self.pos + size]
+        self.pos += size
+        return out
+
+    def text(self) -> str:
+        raw = self.raw(self.take("<I"))
+        try:
+            return raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise _Corrupt("string is not UTF-8", self.base + self.pos) from None
+
+    def string_map(self) -> dict[str, str]:
+        sub = _Cursor(self.raw(self.take("<I")), self.base + self.pos)
+        out = {}
+        while sub.pos < len(sub.data):
+            key = sub.text()
+            out[key] = sub.text()
+        return out
+
 
 @dataclass
 class _RawChannel:
+    """A channel as found in the file, with its messages' times (list of uint64 arrays) and payloads."""
+
     topic: str
-    schema: str
-    times: list[int] = field(default_factory=list)
-    data: list[bytes] = field(default_factory=list)
+    schema_id: int
+    encoding: str
+    times: list[np.ndarray] = field(default_factory=list)
+    payloads: list[bytes] = field(default_factory=list)
+    count: int = 0
 
 
-def _scan(path: Path, allow_truncated: bool) -> tuple[dict[int, _RawChannel], dict[str, dict]]:
-    """All messages grouped by channel, and the metadata; checks only the file's structure."""
-    if not path.is_file():
-        raise SensorDataError(f"{path}: file not found")
-    schema_names: dict[int, str] = {}
-    channels: dict[int, _RawChannel] = {}
-    metadata: dict[str, dict] = {}
-    n_messages = 0
-    complete = False
+@dataclass
+class _Scan:
+    """The structural content of a file: schemas, channels with messages, metadata, first problem."""
+
+    path: str
+    wanted: set[str] | None
+    library: str = ""
+    schemas: dict[int, tuple[str, str]] = field(default_factory=dict)
+    channels: dict[int, _RawChannel] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    problem: _Corrupt | None = None
+    n_messages: int = 0
+
+    def add_schema(self, c: _Cursor) -> None:
+        sid = c.take("<H")
+        name, encoding = c.text(), c.text()
+        c.raw(c.take("<I"))
+        if sid == 0:
+            raise _Corrupt("schema id 0 is reserved", c.base)
+        if self.schemas.setdefault(sid, (name, encoding)) != (name, encoding):
+            raise _Corrupt(f"schema id {sid} defined twice differently", c.base)
+
+    def add_channel(self, c: _Cursor) -> None:
+        cid, schema_id = c.take("<HH")
+        topic, encoding = c.text(), c.text()
+        c.string_map()
+        known = self.channels.get(cid)
+        if known is None:
+            if schema_id and schema_id not in self.schemas:
+                raise _Corrupt(f"channel {topic} refers to undefined schema id {schema_id}", c.base)
+            self.channels[cid] = _RawChannel(topic, schema_id, encoding)
+        elif (known.topic, known.schema_id, known.encoding) != (topic, schema_id, encoding):
+            raise _Corrupt(f"channel id {cid} defined twice differently", c.base)
+
+    def add_messages(self, data: bytes, offsets: list[int], base: int) -> None:
+        """Messages of one chunk (or one top-level message): ``offsets`` of their records in ``data``."""
+        if not offsets:
+            return
+        off = np.asarray(offsets, dtype=np.int64)
+        raw = np.frombuffer(data, dtype=np.uint8)
+        hdr = np.ascontiguousarray(raw[off[:, None] + np.arange(31)]).view(_MSG_HEADER).ravel()
+        if np.any(hdr["length"] < 22):
+            raise _Corrupt("message record shorter than 22 bytes", base + int(off[np.argmax(hdr["length"] < 22)]))
+        channel = hdr["channel"]
+        unknown = ~np.isin(channel, list(self.channels))
+        if unknown.any():
+            i = int(np.argmax(unknown))
+            raise _Corrupt(f"message refers to undefined channel {int(channel[i])}", base + int(off[i]))
+        starts = (off + 31).tolist()
+        stops = (off + 9 + hdr["length"].astype(np.int64)).tolist()
+        for cid in np.unique(channel).tolist():
+            ch = self.channels[cid]
+            sel = channel == cid
+            ch.count += int(sel.sum())
+            if self.wanted is not None and ch.topic not in self.wanted:
+                continue
+            ch.times.append(hdr["log_time"][sel])
+            idx = np.flatnonzero(sel).tolist()
+            ch.payloads.extend(data[starts[i]:stops[i]] for i in idx)
+        self.n_messages += len(offsets)
+
+    def readable(self) -> str:
+        per_topic = ", ".join(f"{c.topic} {c.count}" for c in self.channels.values() if c.count)
+        return f"{self.n_messages} records readable" + (f" ({per_topic})" if per_topic else "")
+
+
+def _walk_chunk(scan: _Scan, data: bytes, base: int, complete: bool) -> None:
+    """Parse the records of one decompressed chunk; a cut last record ends a partial chunk."""
+    offsets: list[int] = []
+    pos, size, head = 0, len(data), _RECORD_HEAD.unpack_from
+    while pos + 9 <= size:
+        op, length = head(data, pos)
+        stop = pos + 9 + length
+        if stop > size:
+            break
+        if op == _MESSAGE:
+            offsets.append(pos)
+        elif op == _SCHEMA:
+            scan.add_schema(_Cursor(data[pos + 9:stop], base))
+        elif op == _CHANNEL:
+            scan.add_channel(_Cursor(data[pos + 9:stop], base))
+        pos = stop
+    scan.add_messages(data, offsets, base)
+    if complete and pos != size:
+        raise _Corrupt("chunk records do not fill the chunk", base)
+
+
+def _inflate(compression: str, data: bytes, size: int, at: int) -> bytes:
+    """Decompress a chunk's records (up to ``size`` bytes; a cut zstd frame yields its readable prefix)."""
+    if size > _MAX_CHUNK_BYTES:
+        raise _Corrupt(f"chunk claims {size} uncompressed bytes", at)
+    if compression == "":
+        return data[:size]
+    if compression == "zstd":
+        try:
+            return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        except zstandard.ZstdError as exc:
+            raise _Corrupt(f"zstd: {exc}", at) from None
+    if compression == "lz4":
+        import lz4.frame
+
+        try:
+            return lz4.frame.decompress(data)
+        except RuntimeError as exc:
+            raise _Corrupt(f"lz4: {exc}", at) from None
+    raise _Corrupt(f"unsupported chunk compression {compression!r}", at)
+
+
+def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool) -> None:
+    """A Chunk record (``body`` may be cut short when ``complete`` is False)."""
+    c = _Cursor(body, at + 9)
+    _start, _end, size, crc = c.take("<QQQI")
+    compression = c.raw(c.take("<I")).decode("utf-8", "replace")
+    declared = c.take("<Q")
+    data = body[c.pos:c.pos + declared]
+    if complete and len(data) != declared:
+        raise _Corrupt("chunk data length beyond its record", at)
+    records = _inflate(compression, data, size, at)
+    if complete:
+        if len(records) != size:
+            raise _Corrupt(f"chunk inflates to {len(records)} bytes, header says {size}", at)
+        if crc and zlib.crc32(records) != crc:
+            raise _Corrupt("chunk CRC mismatch", at)
+    _walk_chunk(scan, records, at, complete)
+
+
+def _read_record(scan: _Scan, op: int, body: bytes, at: int) -> None:
+    """One complete top-level record of the data section."""
+    if op == _CHUNK:
+        _read_chunk(scan, body, at, complete=True)
+    elif op == _MESSAGE:
+        _walk_chunk(scan, _RECORD_HEAD.pack(op, len(body)) + body, at, complete=True)
+    elif op == _SCHEMA:
+        scan.add_schema(_Cursor(body, at + 9))
+    elif op == _CHANNEL:
+        scan.add_channel(_Cursor(body, at + 9))
+    elif op == _METADATA:
+        c = _Cursor(body, at + 9)
+        name = c.text()
+        scan.metadata[name] = c.string_map()
+    elif op == _HEADER:
+        raise _Corrupt("second header record", at)
+
+
+def _scan_records(scan: _Scan, mm, size: int) -> None:
+    """Walk the top-level records; raises _Corrupt at the first structural problem."""
+    if size < len(MAGIC) or mm[:len(MAGIC)] != MAGIC:
+        if MAGIC.startswith(mm[:size]):
+            raise _Corrupt("file ends inside the MCAP magic", size)
+        raise SensorDataError(f"{scan.path}: not an MCAP file (bad magic bytes)")
+    pos, crc, in_data = len(MAGIC), zlib.crc32(MAGIC), True
+    while True:
+        if pos + 9 > size:
+            raise _Corrupt("file ends before the footer", pos)
+        op, length = _RECORD_HEAD.unpack_from(mm, pos)
+        stop = pos + 9 + length
+        if pos == len(MAGIC) and op != _HEADER:
+            raise _Corrupt("first record is not a header", pos)
+        if stop > size:
+            if op == _CHUNK and in_data:
+                _read_chunk(scan, mm[pos + 9:size], pos, complete=False)
+            what = _RECORD_NAMES.get(op, f"opcode {op}")
+            raise _Corrupt(f"{what} record of {length} bytes cut by the end of the file", pos)
+        body = mm[pos + 9:stop]
+        if op == _FOOTER:
+            _check_footer(mm, size, pos, stop, body)
+            return
+        if op == _HEADER and pos == len(MAGIC):
+            c = _Cursor(body, pos + 9)
+            c.text()
+            scan.library = c.text()
+        elif in_data and op == _DATA_END:
+            expected = _Cursor(body, pos + 9).take("<I")
+            if expected and expected != crc:
+                raise _Corrupt("data section CRC mismatch", pos)
+            in_data = False
+        elif in_data:
+            _read_record(scan, op, body, pos)
+        if in_data:
+            crc = zlib.crc32(body, zlib.crc32(mm[pos:pos + 9], crc))
+        pos = stop
+
+
+def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
+    """The footer must be followed by the closing magic; its summary CRC must match."""
+    summary_start, summary_offset_start, summary_crc = _Cursor(body, pos + 9).take("<QQI")
+    if mm[stop:size] != MAGIC:
+        raise _Corrupt("footer not followed by the closing magic", stop)
+    if summary_crc:
+        start = summary_start if summary_start else pos
+        if not len(MAGIC) <= start <= pos:
+            raise _Corrupt("footer points outside the file", pos)
+        computed = zlib.crc32(mm[pos:pos + 9 + 16], zlib.crc32(mm[start:pos]))
+        if computed != summary_crc:
+            raise _Corrupt("summary CRC mismatch", pos)
+
+
+def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _Scan:
+    """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix)."""
+    scan = _Scan(str(path), wanted)
     try:
         with open(path, "rb") as fh:
-            for rec in StreamReader(io.BufferedReader(fh), validate_crcs=True).records:
-                if isinstance(rec, Message):
-                    ch = channels.get(rec.channel_id)
-                    if ch is None:
-                        raise SensorDataError(f"{path}: message {n_messages} refers to unknown channel {rec.channel_id}")
-                    ch.times.append(rec.log_time)
-                    ch.data.append(rec.data)
-                    n_messages += 1
-                elif isinstance(rec, Schema):
-                    schema_names[rec.id] = rec.name
-                elif isinstance(rec, Channel):
-                    if rec.id not in channels:
-                        channels[rec.id] = _RawChannel(rec.topic, schema_names.get(rec.schema_id, ""))
-                elif isinstance(rec, Metadata):
-                    metadata[rec.name] = dict(rec.metadata)
-                elif isinstance(rec, Footer):
-                    complete = True
-    except SensorDataError:
+            size = fh.seek(0, io.SEEK_END)
+            if size == 0:
+                raise _Corrupt("empty file", 0)
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                _scan_records(scan, mm, size)
+    except FileNotFoundError:
+        raise SensorDataError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise SensorDataError(f"{path}: is a directory, not an MCAP file") from None
+    except PermissionError:
+        raise SensorDataError(f"{path}: permission denied") from None
+    except OSError as exc:
+        raise SensorDataError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except _Corrupt as exc:
+        scan.problem = exc
+    except (SensorDataError, MemoryError):
         raise
-    except Exception as exc:  # the MCAP parser's own errors: truncation, corruption, bad CRC
-        if not allow_truncated:
-            raise SensorDataError(f"{path}: truncated or corrupt MCAP ({type(exc).__name__}) after {n_messages} "
-                                  "readable messages; read_log(..., allow_truncated=True) keeps them") from None
-        complete = True
-    if not complete and not allow_truncated:
-        raise SensorDataError(f"{path}: truncated MCAP (no footer) after {n_messages} readable messages; "
-                              "read_log(..., allow_truncated=True) keeps them")
-    return channels, metadata
+    except Exception as exc:  # any other parse failure on a damaged file is a structural problem
+        scan.problem = _Corrupt(f"{type(exc).__name__}: {exc}", -1)
+    if scan.problem is not None and not allow_truncated:
+        where = f" at byte {scan.problem.at}" if scan.problem.at >= 0 else ""
+        raise SensorDataError(f"{path}: truncated or corrupt MCAP{where} ({scan.problem.reason}); "
+                              f"{scan.readable()} before it; read_log(..., allow_truncated=True) returns them")
+    return scan
 
 
-def _get(d, path: str):
-    for part in path.split("."):
-        d = d[int(part)] if isinstance(d, list) else d[part]
-    return d
+# =================================================================================================
+# reading: message content
+# =================================================================================================
+
+class _Bad(Exception):
+    """Internal: record ``index`` of a topic is invalid for ``reason``."""
+
+    def __init__(self, index: int, reason: str):
+        super().__init__(reason)
+        self.index, self.reason = index, reason
 
 
-def _decode(path: Path, ch: _RawChannel) -> list:
+_NUMBER_CHARS = b"0123456789.eE+-"
+_TO_SPACE = bytes(c if c in _NUMBER_CHARS else 32 for c in range(256))
+
+
+def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np.ndarray | None:
+    """Values (N, k) of payloads in the exact canonical layout, or None if any payload differs from it.
+
+    Checks, all in C: deleting every number character from the joined text leaves the template's
+    skeleton N times; each literal piece holding number characters occurs the expected number of
+    times; the numbers then parse to exactly N*k values.
+    """
+    n, k = len(payloads), len(canonical.kinds)
+    pieces = [p.encode() for p in canonical.pieces]
+    skeleton = b"".join(pieces).translate(None, _NUMBER_CHARS)
+    text = b"\n".join(payloads)
+    if text.translate(None, _NUMBER_CHARS) != b"\n".join(itertools.repeat(skeleton, n)):
+        return None
+    for piece in sorted(set(pieces), key=len, reverse=True):
+        if any(ch in _NUMBER_CHARS for ch in piece):
+            if text.count(piece) != n * pieces.count(piece):
+                return None
+            text = text.replace(piece, b" ")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(text.translate(_TO_SPACE), dtype=np.float64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    return values.reshape(n, k) if values.size == n * k else None
+
+
+def _value_problem(v, path: str, kind: str) -> str | None:
+    """Why value ``v`` of field ``path`` is invalid for ``kind``, or None."""
+    if kind == "str":
+        return None if type(v) is str else f"{path} is not a string"
+    if kind == "float9":
+        if type(v) is not list or len(v) != 9:
+            return f"{path} is not an array of 9 numbers"
+        return next((p for j, e in enumerate(v) if (p := _value_problem(e, f"{path}[{j}]", "float"))), None)
+    if type(v) not in (int, float):
+        return f"{path} is not a number"
+    if type(v) is int and abs(v) >= 2**63:
+        return f"{path} is out of range"
+    if v != v:
+        return f"{path} is NaN"
+    if v in (float("inf"), float("-inf")):
+        return f"{path} is infinite"
+    if kind == "int" and v != int(v):
+        return f"{path} is not an integer"
+    return None
+
+
+def _scan_field(msgs: list, path: str, kind: str) -> _Bad:
+    """The first message whose field ``path`` is missing or invalid (the slow, exact path)."""
+    keys = path.split(".")
+    for i, m in enumerate(msgs):
+        v = m
+        for key in keys:
+            if type(v) is not dict or key not in v:
+                return _Bad(i, f"missing field {path}")
+            v = v[key]
+        problem = _value_problem(v, path, kind)
+        if problem:
+            return _Bad(i, problem)
+    return _Bad(len(msgs), f"{path} is unreadable")
+
+
+def _json_field(msgs: list, path: str, kind: str) -> np.ndarray | _Bad:
+    """Field ``path`` of every message as an array ((N,), or (N, 9) for float9), or the first bad record."""
     try:
-        msgs = json.loads(b"[" + b",".join(ch.data) + b"]")
-    except (ValueError, UnicodeDecodeError):
-        msgs = None
-    if msgs is None or any(not isinstance(m, dict) for m in msgs):
-        for i, raw in enumerate(ch.data):
-            try:
-                if not isinstance(json.loads(raw), dict):
-                    raise ValueError("not a JSON object")
-            except (ValueError, UnicodeDecodeError) as exc:
-                raise SensorDataError(f"{path}: {ch.topic} record {i}: invalid JSON ({exc})") from None
+        values = msgs
+        for key in path.split("."):
+            values = list(map(operator.itemgetter(key), values))
+    except (KeyError, TypeError, IndexError):
+        return _scan_field(msgs, path, kind)
+    types = set(map(type, values))
+    try:
+        if kind == "str" and types <= {str}:
+            return np.array(values, dtype=object)
+        if kind == "float9" and types <= {list} and set(map(len, values)) <= {9} and set(
+                map(type, itertools.chain.from_iterable(values))) <= {int, float}:
+            array = np.array(values, dtype=np.float64).reshape(len(values), 9)
+        elif kind in ("float", "int") and types <= {int, float}:
+            array = np.array(values, dtype=np.float64)
+        else:
+            return _scan_field(msgs, path, kind)
+    except OverflowError:
+        return _scan_field(msgs, path, kind)
+    finite = np.isfinite(array)
+    rows = ~(finite.all(axis=1) if array.ndim == 2 else finite)
+    if kind == "int":
+        rows |= np.isfinite(array) & ((array != np.rint(array)) | (np.abs(array) >= 2**63))
+    if rows.any():
+        i = int(np.argmax(rows))
+        return _Bad(i, _value_problem(values[i], path, kind) or f"{path} is out of range")
+    if kind == "int":
+        return np.array(values, dtype=np.int64) if types <= {int} else array.astype(np.int64)
+    return array
+
+
+def _json_messages(payloads: list[bytes]) -> list[dict]:
+    """Decode payloads as JSON objects (one joined parse; per message only to find the first bad one)."""
+    try:
+        msgs = json.loads(b"[" + b",".join(payloads) + b"]")
+        if len(msgs) == len(payloads) and all(type(m) is dict for m in msgs):
+            return msgs
+    except (ValueError, RecursionError):
+        pass
+    msgs = []
+    for i, raw in enumerate(payloads):
+        try:
+            m = json.loads(raw)
+        except UnicodeDecodeError:
+            raise _Bad(i, "message is not UTF-8 text") from None
+        except json.JSONDecodeError as exc:
+            raise _Bad(i, f"invalid JSON ({exc.msg} at character {exc.pos})") from None
+        except (ValueError, RecursionError) as exc:
+            raise _Bad(i, f"invalid JSON ({type(exc).__name__})") from None
+        if type(m) is not dict:
+            raise _Bad(i, "message is not a JSON object")
+        msgs.append(m)
     return msgs
 
 
-def _field(path: Path, ch: _RawChannel, msgs: list, name: str) -> np.ndarray:
-    try:
-        values = np.array([_get(m, name) for m in msgs], dtype=float)
-        if values.ndim != 1:
-            raise TypeError
-    except (KeyError, IndexError, TypeError, ValueError):
-        for i, m in enumerate(msgs):
-            try:
-                v = _get(m, name)
-            except (KeyError, IndexError, TypeError):
-                raise SensorDataError(f"{path}: {ch.topic} record {i}: missing field {name}") from None
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise SensorDataError(f"{path}: {ch.topic} record {i}: {name} is not a number") from None
-        raise SensorDataError(f"{path}: {ch.topic}: unreadable field {name}") from None
-    bad = np.flatnonzero(~np.isfinite(values))
-    if bad.size:
-        raise SensorDataError(f"{path}: {ch.topic} record {bad[0]}: {name} is {values[bad[0]]}")
-    return values
+def _fast_fields(payloads: list[bytes], schema: str) -> dict[str, np.ndarray] | None:
+    """Every required field via the canonical fast path, or None (then the JSON path decides)."""
+    canonical = schemas.CANONICAL[schema]
+    if not canonical.numeric:
+        return None
+    values = _canonical_values(payloads, canonical)
+    if values is None:
+        return None
+    col = {name: values[:, j] for j, name in enumerate(canonical.names)}
+    out: dict[str, np.ndarray] = {}
+    for path, kind in schemas.FIELDS[schema]:
+        if kind == "float9":
+            out[path] = np.column_stack([col[f"{path}.{j}"] for j in range(9)])
+        elif kind == "int":
+            v = col[path]
+            if not np.all((np.abs(v) < 2**53) & (v == np.rint(v))):
+                return None
+            out[path] = v.astype(np.int64)
+        else:
+            out[path] = col[path]
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row = int(np.argmax(bad.any(axis=1)))
+        name = canonical.names[int(np.argmax(bad[row]))]
+        raise _Bad(row, f"{name} is {'NaN' if np.isnan(values[row]).any() else 'infinite'}")
+    return out
 
 
-def _check_channel(path: Path, ch: _RawChannel) -> np.ndarray:
-    """Schema and time checks; returns the times [s]."""
+def _decode_fields(payloads: list[bytes], schema: str) -> dict[str, np.ndarray]:
+    """Required fields of every message; raises _Bad for the first invalid record."""
+    if not payloads:
+        empty = {"float": np.zeros(0), "int": np.zeros(0, np.int64), "str": np.zeros(0, object),
+                 "float9": np.zeros((0, 9))}
+        return {path: empty[kind] for path, kind in schemas.FIELDS[schema]}
+    fast = _fast_fields(payloads, schema)
+    if fast is not None:
+        return fast
+    msgs = _json_messages(payloads)
+    out, first = {}, None
+    for path, kind in schemas.FIELDS[schema]:
+        result = _json_field(msgs, path, kind)
+        if isinstance(result, _Bad):
+            first = result if first is None or result.index < first.index else first
+        else:
+            out[path] = result
+    if first is not None:
+        raise first
+    return out
+
+
+def _check_times(ns: np.ndarray) -> np.ndarray:
+    """``t_s`` (N,) [s] from log_time (N,) uint64 [ns]; raises _Bad unless strictly increasing."""
+    too_big = ns > np.uint64(_INT64_MAX)
+    if too_big.any():
+        raise _Bad(int(np.argmax(too_big)), f"log_time {int(ns[np.argmax(too_big)])} ns out of range")
+    t = ns.astype(np.int64)
+    back = np.flatnonzero(np.diff(t) <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        what = "duplicated" if t[i] == t[i - 1] else "going backwards"
+        raise _Bad(i, f"log_time {what} ({int(t[i])} ns after {int(t[i - 1])} ns)")
+    return t / 1e9
+
+
+def _channel_schema(scan: _Scan, ch: _RawChannel) -> str:
+    """The channel's schema name after checking topic, schema and encoding; raises _Bad(0, ...)."""
     expected = schemas.schema_for_topic(ch.topic)
     if expected is None:
-        raise SensorDataError(f"{path}: {ch.topic} record 0: unknown topic")
-    if ch.schema != expected:
-        raise SensorDataError(f"{path}: {ch.topic} record 0: unknown schema {ch.schema!r} (expected {expected!r})")
-    ns = np.array(ch.times, dtype=np.int64)
-    back = np.flatnonzero(np.diff(ns) <= 0)
-    if back.size:
-        i = back[0] + 1
-        what = "duplicated" if ns[i] == ns[i - 1] else "going backwards"
-        raise SensorDataError(f"{path}: {ch.topic} record {i}: log_time {what} ({ns[i]} ns after {ns[i - 1]} ns)")
-    return ns / 1e9
+        raise _Bad(0, "unknown topic")
+    name = scan.schemas.get(ch.schema_id, ("", ""))[0]
+    if not name:
+        raise _Bad(0, f"channel has no schema (expected {expected!r})")
+    if name != expected:
+        raise _Bad(0, f"unknown schema {name!r} (expected {expected!r})")
+    if ch.encoding != "json":
+        raise _Bad(0, f"message encoding {ch.encoding!r} is not 'json'")
+    return name
 
 
-def read_log(path: str | Path, topics: list[str] | None = None, allow_truncated: bool = False) -> SensorLog:
-    """Read and check a raw log; ``topics`` limits which topics are decoded (default: all).
+def _sensor(topic: str, schema: str, t_s: np.ndarray, f: dict[str, np.ndarray]):
+    """The sensor dataclass of one decoded topic."""
+    if schema == schemas.IMU:
+        return ImuData(t_s, np.column_stack([f[f"angular_velocity.{a}"] for a in "xyz"]).reshape(-1, 3),
+                       np.column_stack([f[f"linear_acceleration.{a}"] for a in "xyz"]).reshape(-1, 3))
+    if schema == schemas.ODOMETER:
+        return OdometerData(t_s, f["distance_m"], f["ticks"])
+    if schema == schemas.LOCATION_FIX:
+        return GnssData(t_s, f["latitude"], f["longitude"], f["altitude"],
+                        f["position_covariance"].reshape(-1, 3, 3), f["fix_quality"])
+    if schema == schemas.POLAR:
+        sid = topic[len(schemas.TOTAL_STATION_PREFIX):]
+        return TotalStationData(sid, t_s, f["horizontal_angle_rad"], f["zenith_angle_rad"], f["slope_distance_m"],
+                                f["prism_id"])
+    if schema == schemas.INCLINATION:
+        return InclinometerData(t_s, f["roll_rad"], f["pitch_rad"])
+    return GaugeData(t_s, f["gauge_m"])
 
-    Raises :class:`SensorDataError` (one line: file, topic, record index) on the first bad record.
-    """
-    p = Path(path)
-    channels, metadata = _scan(p, allow_truncated)
-    log = SensorLog()
-    for ch in channels.values():
-        t = _check_channel(p, ch)
-        if topics is not None and ch.topic not in topics:
+
+def _store(log: SensorLog, topic: str, data) -> None:
+    if isinstance(data, TotalStationData):
+        log.total_stations[data.station_id] = data
+    else:
+        setattr(log, topic[1:], data)
+
+
+def _decode_metadata(path: Path, records: dict[str, dict[str, str]]) -> dict[str, Any]:
+    """``{"json": text}`` records -> the decoded value; any other record stays a string map."""
+    out: dict[str, Any] = {}
+    for name, data in records.items():
+        if set(data) != {"json"}:
+            out[name] = dict(data)
             continue
-        msgs = _decode(p, ch)
-        cols = {name: _field(p, ch, msgs, name) for name in schemas.FIELDS[ch.schema]}
-        _store(log, ch, t, cols, msgs, p)
-    for name, data in metadata.items():
         try:
-            log.metadata[name] = json.loads(data["json"]) if set(data) == {"json"} else data
-        except ValueError:
-            raise SensorDataError(f"{p}: metadata {name!r}: invalid JSON") from None
-    return log
+            out[name] = json.loads(data["json"])
+        except (ValueError, RecursionError):
+            raise SensorDataError(f"{path}: metadata record {name!r}: invalid JSON in key 'json'") from None
+    return out
 
 
-def _store(log: SensorLog, ch: _RawChannel, t: np.ndarray, c: dict, msgs: list, p: Path) -> None:
-    s = ch.schema
-    if s == "trackfusion.Imu":
-        log.imu = ImuData(t, np.column_stack([c[f"angular_velocity.{a}"] for a in "xyz"]),
-                          np.column_stack([c[f"linear_acceleration.{a}"] for a in "xyz"]))
-    elif s == "trackfusion.Odometer":
-        log.odometer = OdometerData(t, c["distance_m"], c["ticks"].astype(np.int64))
-    elif s == "foxglove.LocationFix":
-        cov = np.column_stack([c[f"position_covariance.{i}"] for i in range(9)]).reshape(-1, 3, 3)
-        log.gnss = GnssData(t, c["latitude"], c["longitude"], c["altitude"], cov, c["fix_quality"].astype(np.int64))
-    elif s == schemas.TOTAL_STATION_SCHEMA:
-        sid = ch.topic[len(schemas.TOTAL_STATION_PREFIX):]
-        prism = np.array([str(m.get("prism_id", "")) for m in msgs], dtype=object)
-        log.total_stations[sid] = TotalStationData(sid, t, c["horizontal_angle_rad"], c["zenith_angle_rad"],
-                                                   c["slope_distance_m"], prism)
-    elif s == "trackfusion.Inclination":
-        log.inclinometer = InclinometerData(t, c["roll_rad"], c["pitch_rad"])
-    elif s == "trackfusion.Gauge":
-        log.gauge = GaugeData(t, c["gauge_m"])
+def read_log(path: str | Path, topics: Iterable[str] | None = None, allow_truncated: bool = False) -> SensorLog:
+    """Read and check a raw MCAP log (docs/log_format.md).
+
+    path: the ``.mcap`` file (never modified). topics: decode only these topics (e.g.
+    ``["/imu", "/odometer"]``; default all); every channel's topic and schema are still checked and
+    a truncated file is still detected. allow_truncated: when the file is cut short or corrupt,
+    return the records readable before the damage (whole records of complete chunks plus the
+    complete records of a cut chunk) instead of raising.
+
+    Returns a :class:`SensorLog` (times ``t_s`` = log_time / 1e9 on each sensor's clock; metadata
+    records decoded from their ``json`` key). Raises :class:`SensorDataError` with one line
+    naming the file, topic and record index for the first invalid record, and for a missing,
+    truncated or corrupt file (then saying how many records were readable).
+    """
+    if isinstance(topics, str):
+        topics = [topics]
+    return _read(Path(path), None if topics is None else set(topics), allow_truncated)[0]
 
 
-# --- inspect ---------------------------------------------------------------------------------------
+def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
+    """The sensor data of one channel; raises _Bad for its first invalid record (time or content)."""
+    ns = np.concatenate(ch.times) if ch.times else np.zeros(0, np.uint64)
+    problems, t_s, fields = [], None, None
+    try:
+        t_s = _check_times(ns)
+    except _Bad as bad:
+        problems.append(bad)
+    try:
+        fields = _decode_fields(ch.payloads, schema)
+    except _Bad as bad:
+        problems.append(bad)
+    if problems:
+        raise min(problems, key=lambda b: b.index)
+    return _sensor(ch.topic, schema, t_s, fields)
+
+
+def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[SensorLog, _Scan]:
+    """read_log, also returning the file's structural scan."""
+    scan = _scan_file(p, allow_truncated, wanted)
+    log = SensorLog()
+    seen: dict[str, int] = {}
+    for cid, ch in scan.channels.items():
+        try:
+            schema = _channel_schema(scan, ch)
+            if ch.topic in seen:
+                raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
+            seen[ch.topic] = cid
+            if wanted is None or ch.topic in wanted:
+                _store(log, ch.topic, _decode_channel(scan, ch, schema))
+        except _Bad as bad:
+            raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
+        ch.payloads, ch.times = [], []
+    log.metadata = _decode_metadata(p, scan.metadata)
+    return log, scan
+
+
+# =================================================================================================
+# inspect
+# =================================================================================================
+
+GAP_FACTOR = 3.0
+
 
 @dataclass
 class TopicSummary:
-    """One topic: schema, message count, mean rate [Hz], first/last time and span [s], gaps
-    (intervals longer than 3x the median interval: count, largest [s], where it starts [s])."""
+    """One topic of a log.
+
+    count: messages; rate_hz: mean rate (count - 1) / span [Hz]; first_s, last_s, span_s: time of
+    the first and last message and their difference [s, on the topic's clock]; median_interval_s:
+    median sample interval [s]; gap_count: intervals longer than GAP_FACTOR x the median interval;
+    largest_gap_s: the longest interval [s] (0 without gaps); largest_gap_at_s: where it starts [s].
+    """
 
     topic: str
     schema: str
+    clock: str
     count: int
     rate_hz: float
     first_s: float
     last_s: float
     span_s: float
-    gaps: int
+    median_interval_s: float
+    gap_count: int
     largest_gap_s: float
     largest_gap_at_s: float
 
 
 @dataclass
 class LogSummary:
-    """What ``trackfusion inspect`` prints: the file, its topics and metadata record names."""
+    """What ``trackfusion inspect`` prints: the file, its writer, its topics and metadata record names."""
 
     path: Path
     size_bytes: int
+    library: str
     topics: list[TopicSummary]
     metadata: list[str]
 
     def format(self) -> str:
-        """A readable table."""
-        lines = [f"{self.path}: {self.size_bytes / 1e6:.1f} MB, {len(self.topics)} topics",
-                 f"{'topic':24s} {'schema':30s} {'count':>9s} {'rate Hz':>8s} {'first s':>10s} {'last s':>10s} "
-                 f"{'span s':>9s} {'gaps':>5s} {'max gap s':>9s} {'at s':>9s}"]
+        """A readable table: one row per topic, then the metadata record names."""
+        total = sum(t.count for t in self.topics)
+        lines = [f"{self.path}: {self.size_bytes / 1e6:.2f} MB, {total} messages on {len(self.topics)} topics"
+                 f" (written by {self.library or 'unknown'})",
+                 f"{'topic':24s} {'schema':30s} {'clock':7s} {'count':>9s} {'rate Hz':>9s} {'first s':>11s} "
+                 f"{'last s':>11s} {'span s':>10s} {'gaps':>5s} {'max gap s':>10s} {'at s':>11s}"]
         for t in self.topics:
-            lines.append(f"{t.topic:24s} {t.schema:30s} {t.count:9d} {t.rate_hz:8.2f} {t.first_s:10.3f} "
-                         f"{t.last_s:10.3f} {t.span_s:9.3f} {t.gaps:5d} {t.largest_gap_s:9.3f} "
-                         f"{t.largest_gap_at_s:9.3f}")
-        lines.append("metadata: " + (", ".join(self.metadata) or "none"))
+            lines.append(f"{t.topic:24s} {t.schema:30s} {t.clock:7s} {t.count:9d} {t.rate_hz:9.3f} "
+                         f"{t.first_s:11.3f} {t.last_s:11.3f} {t.span_s:10.3f} {t.gap_count:5d} "
+                         f"{t.largest_gap_s:10.3f} {t.largest_gap_at_s:11.3f}")
+        lines.append("metadata records: " + (", ".join(self.metadata) or "none"))
         return "\n".join(lines)
 
 
-def _topic_summary(topic: str, schema: str, t: np.ndarray) -> TopicSummary:
-    span = float(t[-1] - t[0]) if t.size else 0.0
+def summarise_times(topic: str, schema: str, t_s: np.ndarray) -> TopicSummary:
+    """Count, mean rate, span and gaps of one topic's times ``t_s`` (N,) [s], strictly increasing."""
+    t = np.asarray(t_s, dtype=float)
+    clock = "station" if topic.startswith(schemas.TOTAL_STATION_PREFIX) else "imu"
+    if t.size == 0:
+        return TopicSummary(topic, schema, clock, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0)
+    span = float(t[-1] - t[0])
     dt = np.diff(t)
-    if dt.size:
-        long = dt > 3 * np.median(dt)
-        k = int(np.argmax(dt))
-        gaps, largest, at = int(long.sum()), (float(dt[k]) if long.any() else 0.0), (float(t[k]) if long.any() else 0.0)
-    else:
-        gaps, largest, at = 0, 0.0, 0.0
-    rate = (t.size - 1) / span if span > 0 else 0.0
-    return TopicSummary(topic, schema, int(t.size), rate, float(t[0]) if t.size else 0.0,
-                        float(t[-1]) if t.size else 0.0, span, gaps, largest, at)
+    median = float(np.median(dt)) if dt.size else 0.0
+    long = dt > GAP_FACTOR * median if dt.size else np.zeros(0, bool)
+    k = int(np.argmax(dt)) if long.any() else -1
+    return TopicSummary(topic, schema, clock, int(t.size), (t.size - 1) / span if span > 0 else 0.0,
+                        float(t[0]), float(t[-1]), span, median, int(long.sum()),
+                        float(dt[k]) if k >= 0 else 0.0, float(t[k]) if k >= 0 else 0.0)
 
 
 def inspect_log(path: str | Path) -> LogSummary:
-    """Check a log fully (as :func:`read_log`) and summarise it per topic."""
+    """Check a log fully (as :func:`read_log`, strict) and summarise it per topic."""
     p = Path(path)
-    log = read_log(p)
+    log, scan = _read(p, None, allow_truncated=False)
     entries: list[tuple[str, str, np.ndarray]] = []
     for topic, schema in schemas.TOPICS.items():
-        data = getattr(log, topic[1:], None)
+        data = getattr(log, topic[1:])
         if data is not None:
             entries.append((topic, schema, data.t_s))
     for sid, d in sorted(log.total_stations.items()):
         entries.append((schemas.TOTAL_STATION_PREFIX + sid, schemas.TOTAL_STATION_SCHEMA, d.t_s))
-    return LogSummary(p, p.stat().st_size, [_topic_summary(*e) for e in entries], sorted(log.metadata))
+    return LogSummary(p, p.stat().st_size, scan.library, [summarise_times(*e) for e in entries], sorted(log.metadata))
