@@ -255,6 +255,35 @@ def test_first_bad_record_index_in_a_long_canonical_topic(tmp_path, bad_index, e
         read_log(tmp_path / "bad.mcap")
 
 
+@pytest.mark.parametrize("number", ["01.5", "+1.5", ".5", "1.", "1e", "-", "1.2.3", "1e2.5", "1e+-2", "-01", "0x1"])
+def test_numbers_that_are_not_json_are_refused_in_the_canonical_layout(tmp_path, number):
+    """numpy would parse some of these; the fast path must refuse exactly what json refuses."""
+    payloads = ['{"gauge_m":1.435}'] * 700 + ['{"gauge_m":%s}' % number] + ['{"gauge_m":1.5}'] * 5
+    _raw_log(tmp_path / "g.mcap", "/gauge", "trackfusion.Gauge", payloads, range(1, len(payloads) + 1))
+    with pytest.raises(SensorDataError, match="/gauge record 700: invalid JSON"):
+        read_log(tmp_path / "g.mcap")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.text("0123456789.eE+-", min_size=1, max_size=8), min_size=1, max_size=6), st.integers(0, 9))
+def test_json_number_grammar_matches_the_json_module(tokens, block_log2):
+    """The vectorised grammar check agrees with json.loads on every token, across block boundaries."""
+    from trackfusion.sensors import mcap_log
+
+    def is_number(tok):
+        try:
+            return type(json.loads(tok)) in (int, float)
+        except ValueError:
+            return False
+
+    old = mcap_log._GRAMMAR_BLOCK
+    mcap_log._GRAMMAR_BLOCK = 2 ** block_log2
+    try:
+        assert mcap_log._json_numbers(" ".join(tokens).encode()) == all(map(is_number, tokens))
+    finally:
+        mcap_log._GRAMMAR_BLOCK = old
+
+
 def test_two_channels_with_one_topic(tmp_path):
     _foreign_log(tmp_path / "a.mcap", [("/gauge", "trackfusion.Gauge", [(1, '{"gauge_m":1.4}')]),
                                        ("/gauge", "trackfusion.Gauge", [(2, '{"gauge_m":1.4}')])])
@@ -384,3 +413,43 @@ def test_fuzz_reader_only_raises_sensor_data_error(tmp_path_factory, valid_bytes
         inspect_log(p).format()
     except SensorDataError:
         pass
+
+
+@pytest.fixture(scope="module")
+def plain_bytes(tmp_path_factory):
+    """A small valid log with uncompressed, unchunked messages and no CRCs: mutations reach the JSON layer."""
+    p = tmp_path_factory.mktemp("plain") / "ok.mcap"
+    log = small_log(40)
+    write_log(p.with_name("src.mcap"), log)
+    with open(p.with_name("src.mcap"), "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        by_topic: dict[str, list] = {}
+        for _, channel, m in reader.iter_messages(log_time_order=False):
+            by_topic.setdefault(channel.topic, []).append((m.log_time, m.data.decode()))
+        schema_of = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    _foreign_log(p, [(t, schema_of[t], msgs) for t, msgs in by_topic.items()], CompressionType.NONE, chunked=False)
+    log.metadata = {}
+    assert_logs_equal(read_log(p), log)
+    return p.read_bytes()
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_fuzz_message_content_only_raises_sensor_data_error(tmp_path_factory, plain_bytes, data):
+    """Byte edits inside uncompressed messages: the reader returns a log or one SensorDataError line."""
+    raw = bytearray(plain_bytes)
+    for _ in range(data.draw(st.integers(1, 4))):
+        i = data.draw(st.integers(0, len(raw) - 1))
+        raw[i] = data.draw(st.sampled_from(list(b'0123456789.eE+-"{}[],:NaIfinty \\\x00\xff')))
+    p = tmp_path_factory.mktemp("f") / "x.mcap"
+    p.write_bytes(bytes(raw))
+    try:
+        log = read_log(p)
+    except SensorDataError as exc:
+        assert "\n" not in str(exc) and str(p) in str(exc)
+        return
+    for d in (log.imu, log.odometer, log.gauge, log.inclinometer):
+        if d is not None:
+            assert np.all(np.diff(d.t_s) > 0)
+            assert all(np.isfinite(np.asarray(v, dtype=float)).all() for v in vars(d).values())
