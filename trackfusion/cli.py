@@ -39,6 +39,14 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .pipeline import format_summary, load_pipeline, run
+
+    result = run(load_pipeline(args.pipeline), args.out, progress=_progress)
+    print(format_summary(result))
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
@@ -68,6 +76,11 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("inspect", help="summarise a raw MCAP log")
     s.add_argument("log")
     s.set_defaults(func=_cmd_inspect)
+
+    s = sub.add_parser("run", help="process a survey with a pipeline YAML")
+    s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")
+    s.add_argument("--out", default=None, help="output folder (default: out/ beside the YAML)")
+    s.set_defaults(func=_cmd_run)
 
     s = sub.add_parser("evaluate", help="relative accuracy of a trajectory against a reference")
     s.add_argument("estimate")

@@ -269,11 +269,11 @@ def evaluate_files(estimate_path: str | Path, reference_path: str | Path, match:
     """
     est, est_meta = read_trajectory(estimate_path)
     ref, ref_meta = read_trajectory(reference_path)
-    _check_same_origin(estimate_path, est_meta.get("origin"), reference_path, ref_meta.get("origin"))
+    check_same_origin(estimate_path, est_meta.get("origin"), reference_path, ref_meta.get("origin"))
     return evaluate_trajectories(est, ref, match=match, config=config)
 
 
-def _check_same_origin(estimate_path, oe, reference_path, orf) -> None:
+def check_same_origin(estimate_path, oe, reference_path, orf) -> None:
     if not (isinstance(oe, dict) and isinstance(orf, dict)):
         return
     try:

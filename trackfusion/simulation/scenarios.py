@@ -324,15 +324,21 @@ class SimulationReport:
 
 
 def pipeline_for(sim: Simulation) -> dict[str, Any]:
-    """The pipeline a simulated run should be processed with (paths relative to its folder)."""
+    """The pipeline a simulated run should be processed with (paths relative to its folder;
+    schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md)."""
     cfg = sim.config
     factors = {"imu": True, "zupt": True, "nhc": True, "odometer": cfg.odometer is not None,
-               "gnss": cfg.gnss is not None, "total_stations": cfg.total_stations is not None,
-               "inclinometer": cfg.inclinometer is not None}
+               "gnss": cfg.gnss is not None, "inclinometer": cfg.inclinometer is not None,
+               # prism fusion arrives with the total-station issue; the stations are listed below
+               "total_stations": False}
     sensors: dict[str, Any] = {"imu": _imu_spec(cfg.imu).model_dump()}
     arms = sim.truth_info["lever_arms_b_m"]
+    if cfg.odometer is not None:
+        sensors["odometer"] = {"clock_offset_s": 0.0}
     if "gnss_antenna" in arms:
-        sensors["gnss"] = {"lever_arm_b_m": arms["gnss_antenna"]}
+        sensors["gnss"] = {"lever_arm_b_m": arms["gnss_antenna"], "clock_offset_s": 0.0}
+    if cfg.inclinometer is not None:
+        sensors["inclinometer"] = {"clock_offset_s": 0.0}
     if "prism" in arms:
         sensors["total_stations"] = {"prism_lever_arm_b_m": arms["prism"],
                                      "stations": sim.log.metadata.get("total_stations", {})}
@@ -342,7 +348,8 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
         "origin": sim.origin.to_dict(),
         "trolley": {"wheelbase_m": cfg.trolley.wheelbase_m, "reference_rail": cfg.trolley.reference_rail,
                     "lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
-                    "mounting_ypr_deg": list(cfg.trolley.mounting_ypr_deg)},
+                    "mounting_ypr_deg": list(cfg.trolley.mounting_ypr_deg),
+                    "odometer_wheel": cfg.trolley.odometer_wheel},
         "sensors": sensors,
         "factors": factors,
         "keyframes": {"spacing_s": 0.1},

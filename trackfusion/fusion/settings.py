@@ -1,0 +1,123 @@
+"""Smoother settings: which factors are used and their noise (the ``factors``, ``keyframes``,
+``static`` and ``smoother`` sections of a pipeline YAML; docs/pipeline.md).
+
+Every model refuses unknown keys; units are in the key names. A factor section may be
+written as ``true``/``false`` instead of a mapping (defaults, switched on or off).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _Factor(_Strict):
+    enabled: bool = True
+
+    @model_validator(mode="before")
+    @classmethod
+    def _bool_shorthand(cls, data: Any) -> Any:
+        return {"enabled": data} if isinstance(data, bool) else data
+
+
+class ImuFactorSettings(_Factor):
+    """CombinedImuFactor between keyframes; ``earth_rate`` and ``gravity_per_position`` may be
+    switched off only to demonstrate what they do (tests)."""
+
+    earth_rate: bool = True
+    gravity_per_position: bool = True
+
+
+class ZuptSettings(_Factor):
+    """Zero velocity and zero angular rate on detected static intervals."""
+
+    sigma_velocity_mm_per_s: float = Field(0.2, gt=0)
+    sigma_rate_deg_per_h: float = Field(0.1, gt=0)
+
+
+class NhcSettings(_Factor):
+    """Zero lateral and vertical velocity (in ``v``) of the point midway between the
+    reference-rail wheel contacts (the trolley frame's origin)."""
+
+    sigma_mm_per_s: float = Field(2.0, gt=0)
+
+
+class OdometerFactorSettings(_Factor):
+    """Distance increments between keyframes with a scale-error state (random walk)."""
+
+    sigma_mm: float = Field(0.05, gt=0)
+    scale_sigma_ppm: float = Field(1000.0, gt=0)
+    scale_random_walk_ppm_per_sqrt_h: float = Field(20.0, gt=0)
+    scale_segment_s: float = Field(10.0, gt=0)
+    huber_k: float = Field(3.0, gt=0)
+    gross_error_threshold_m: float = Field(0.01, gt=0)
+    gross_error_window: int = Field(8, ge=4)
+
+
+class GnssFactorSettings(_Factor):
+    """Antenna position with lever arm; reported covariance times ``covariance_scale``, floored
+    at ``min_sigma_mm``; Huber loss; fixes whose normalised residual exceeds ``gate_chi2``
+    (3 degrees of freedom) after a solve are rejected and the graph solved again."""
+
+    covariance_scale: float = Field(1.0, gt=0)
+    min_sigma_mm: float = Field(2.0, gt=0)
+    huber_k: float = Field(2.0, gt=0)
+    gate_chi2: float = Field(21.1, gt=0)
+    accept_float: bool = True
+
+
+class InclinometerFactorSettings(_Factor):
+    """Roll and pitch of ``v`` measured by an inclinometer (seed 004)."""
+
+    sigma_mrad: float = Field(0.1, gt=0)
+
+
+class TotalStationFactorSettings(_Factor):
+    """Prism positions from robotic total stations (issue 5; not yet fused)."""
+
+    enabled: bool = False
+
+
+class FactorSettings(_Strict):
+    imu: ImuFactorSettings = ImuFactorSettings()
+    zupt: ZuptSettings = ZuptSettings()
+    nhc: NhcSettings = NhcSettings()
+    odometer: OdometerFactorSettings = OdometerFactorSettings()
+    gnss: GnssFactorSettings = GnssFactorSettings()
+    inclinometer: InclinometerFactorSettings = InclinometerFactorSettings()
+    total_stations: TotalStationFactorSettings = TotalStationFactorSettings()
+
+
+class KeyframeSettings(_Strict):
+    spacing_s: float = Field(0.1, gt=0, le=5.0)
+
+
+class StaticSettings(_Strict):
+    """Static-interval detection (moving standard deviations over ``window_s``)."""
+
+    window_s: float = Field(0.5, gt=0)
+    gyro_std_deg_per_s: float = Field(0.01, gt=0)
+    accel_std_mps2: float = Field(0.005, gt=0)
+    max_odometer_speed_mps: float = Field(0.001, gt=0)
+    min_duration_s: float = Field(2.0, gt=0)
+
+
+class SmootherSettings(_Strict):
+    """Gauss-Newton iterations; overlapping chunks bound memory on long runs."""
+
+    max_iterations: int = Field(10, ge=1)
+    relative_tolerance: float = Field(1e-7, gt=0)
+    chunk_s: float = Field(1800.0, gt=60)
+    overlap_s: float = Field(60.0, gt=0)
+    marginal_step_s: float = Field(1.0, gt=0)
+
+    @model_validator(mode="after")
+    def _overlap_fits(self) -> "SmootherSettings":
+        if not self.overlap_s * 3 <= self.chunk_s:
+            raise ValueError("overlap_s must be at most a third of chunk_s")
+        return self

@@ -1,0 +1,467 @@
+"""Batch factor-graph smoother (DESIGN.md section 5).
+
+Variables per keyframe k: pose ``X(k)`` (``R_nb``, IMU origin in ``n``), velocity ``V(k)``
+[m/s, n], IMU bias ``B(k)``; odometer scale error ``S(m)`` per scale segment.
+Factors: ``CombinedImuFactor`` between keyframes; bias and scale priors; ZUPT (zero
+velocity prior, zero relative pose between static keyframes); GNSS (``GPSFactorArm``,
+Huber, gated); and the vectorised factors of :mod:`.factors` (NHC, odometer,
+inclinometer). Gauss-Newton with a backtracking line search: GTSAM linearises its
+factors, numpy linearises ours, GTSAM eliminates (multifrontal Cholesky).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, S, V, X
+
+from .. import geodesy
+from ..errors import FusionError
+from ..rotations import so3_exp
+from . import factors as fx
+from .alignment import Alignment, align
+from .preintegration import preintegrate
+from .problem import FusionProblem
+
+DEG = np.pi / 180.0
+
+
+@dataclass
+class SmootherResult:
+    """Smoothed keyframe states and their uncertainty.
+
+    t_s (K,) keyframe times [s]; key_idx (K,) their IMU sample indices; R_nb (K,3,3);
+    pos_n (K,3) [m]; vel_n (K,3) [m/s]; gyro_bias_radps, accel_bias_mps2 (K,3);
+    odometer_scale (K,) [-] scale error at each keyframe (None without odometer);
+    sigma_t_s (M,) times of the marginals; sigma_pos_n_m (M,3) [m]; sigma_att_rad (M,3)
+    (roll, pitch about body x/y, yaw about n up) [rad].
+    """
+
+    t_s: np.ndarray
+    key_idx: np.ndarray
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+    gyro_bias_radps: np.ndarray
+    accel_bias_mps2: np.ndarray
+    odometer_scale: np.ndarray | None
+    sigma_t_s: np.ndarray
+    sigma_pos_n_m: np.ndarray
+    sigma_att_rad: np.ndarray
+    alignment: Alignment
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    factor_counts: dict[str, int]
+    rejected_gnss: list[dict]
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+# --- keyframes and the initial estimate ----------------------------------------------------------
+
+def nearest_sample(t_s: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Index (M,) of the sample of ``t_s`` (N,) nearest to each query time."""
+    i = np.clip(np.searchsorted(t_s, t_query), 1, t_s.size - 1)
+    return np.where(np.abs(t_s[i - 1] - t_query) <= np.abs(t_s[i] - t_query), i - 1, i)
+
+
+def keyframe_indices(t_s: np.ndarray, spacing_s: float, extra_t_s: np.ndarray | None = None) -> np.ndarray:
+    """Sorted unique IMU sample indices (K,) of keyframes: a regular grid of ``spacing_s``, the
+    first and last samples, and the samples nearest to ``extra_t_s`` (aiding epochs)."""
+    grid = nearest_sample(t_s, np.arange(t_s[0], t_s[-1], spacing_s))
+    parts = [grid, [0, t_s.size - 1]]
+    if extra_t_s is not None and extra_t_s.size:
+        inside = extra_t_s[(extra_t_s >= t_s[0]) & (extra_t_s <= t_s[-1])]
+        parts.append(nearest_sample(t_s, inside))
+    return np.unique(np.concatenate(parts).astype(np.int64))
+
+
+def static_mask(t_s: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:
+    """Boolean (K,) true where ``t_s`` lies inside a static interval."""
+    mask = np.zeros(t_s.size, dtype=bool)
+    for a, b in intervals:
+        mask |= (t_s >= a) & (t_s <= b)
+    return mask
+
+
+def _alignment(problem: FusionProblem) -> Alignment:
+    imu = problem.imu
+    start = [iv for iv in problem.static_intervals_s if iv[0] <= imu.t_s[0] + 5.0]
+    if start:
+        sel = (imu.t_s >= start[0][0]) & (imu.t_s <= start[0][1])
+        static_s = float(start[0][1] - start[0][0])
+    else:
+        sel = np.zeros(imu.t_s.size, dtype=bool)
+        static_s = 0.0
+    displacement = None
+    g = problem.gnss
+    if g is not None and g.t_s.size > 1:
+        far = np.flatnonzero(np.linalg.norm(g.pos_n - g.pos_n[0], axis=1) > 5.0)
+        if far.size:
+            forward = True
+            odo = problem.odometer
+            if odo is not None:
+                forward = bool(np.interp(g.t_s[far[0]], odo.t_s, odo.distance_m) >= odo.distance_m[0])
+            displacement = (g.pos_n[far[0]] - g.pos_n[0], forward)
+    lat = np.radians(problem.origin.lat_deg)
+    return align(imu.gyro_radps[sel], imu.accel_mps2[sel], lat, problem.imu_gyro_bias_deg_per_h, static_s,
+                 displacement, problem.trolley.R_vb)
+
+
+def _chain_rotations(R0: np.ndarray, pims, dt_key: np.ndarray, omega_ie_n: np.ndarray) -> np.ndarray:
+    """Attitudes (K,3,3) from the preintegrated rotations and the Earth's rotation."""
+    dR = np.array([p.deltaRij().matrix() for p in pims])
+    earth = so3_exp(-omega_ie_n[None, :] * dt_key[:, None])
+    R = np.empty((len(pims) + 1, 3, 3))
+    R[0] = R0
+    for k in range(len(pims)):
+        R[k + 1] = earth[k] @ R[k] @ dR[k]
+    return R
+
+
+def initial_states(problem: FusionProblem, t_key: np.ndarray, R_nb: np.ndarray,
+                   static: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Initial positions (K,3) and velocities (K,3): odometer speed along the trolley axis (else
+    differenced GNSS), integrated, then shifted onto the GNSS fixes (interpolated residuals)."""
+    axis_n = R_nb @ problem.trolley.axis_b
+    g = problem.gnss
+    if problem.odometer is not None:
+        d = np.interp(t_key, problem.odometer.t_s, problem.odometer.distance_m)
+        vel = axis_n * np.gradient(d, t_key)[:, None]
+    elif g is not None and g.t_s.size > 1:
+        vel = np.column_stack([np.interp(t_key, g.t_s, np.gradient(g.pos_n[:, i], g.t_s)) for i in range(3)])
+    else:
+        vel = np.zeros((t_key.size, 3))
+    vel[static] = 0.0
+    pos = np.zeros_like(vel)
+    pos[1:] = np.cumsum(0.5 * (vel[1:] + vel[:-1]) * np.diff(t_key)[:, None], axis=0)
+    if g is not None and g.t_s.size:
+        antenna = pos + R_nb @ g.lever_arm_b
+        pred = np.column_stack([np.interp(g.t_s, t_key, antenna[:, i]) for i in range(3)])
+        resid = g.pos_n - pred
+        pos += np.column_stack([np.interp(t_key, g.t_s, resid[:, i]) for i in range(3)])
+    return pos, vel
+
+
+# --- the graph --------------------------------------------------------------------------------------
+
+@dataclass
+class _Graph:
+    """The built-in factors (a GTSAM graph) and builders of the vectorised ones."""
+
+    graph: gtsam.NonlinearFactorGraph
+    builders: list[tuple[str, Callable[["_State"], fx.LinearBlocks]]]
+    counts: dict[str, int]
+    gnss_key_idx: np.ndarray  # keyframe index of each used GNSS fix
+    gnss_used: np.ndarray  # indices into problem.gnss of the used fixes
+    gnss_pos_n: np.ndarray  # the fixes moved to their keyframes' times (M,3)
+
+
+@dataclass
+class _State:
+    R: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    s: np.ndarray | None
+
+    @classmethod
+    def of(cls, values: gtsam.Values, with_scale: bool) -> "_State":
+        P = gtsam.utilities.extractPose3(values)
+        s = gtsam.utilities.extractVectors(values, "s")[:, 0] if with_scale else None
+        return cls(P[:, :9].reshape(-1, 3, 3), P[:, 9:].copy(), gtsam.utilities.extractVectors(values, "v"), s)
+
+
+class _Builder:
+    """Adds every factor of a problem to a graph, given keyframes and the initial estimate."""
+
+    def __init__(self, problem: FusionProblem, t_key: np.ndarray, key_idx: np.ndarray, pims, static: np.ndarray,
+                 pos0: np.ndarray, R0: np.ndarray, vel0: np.ndarray, alignment: Alignment, seg: np.ndarray | None):
+        self.pb, self.t, self.idx, self.pims, self.static = problem, t_key, key_idx, pims, static
+        self.pos0, self.R0, self.vel0, self.alignment, self.seg = pos0, R0, vel0, alignment, seg
+        self.g = gtsam.NonlinearFactorGraph()
+        self.builders: list = []
+        self.counts: dict[str, int] = {}
+
+    def _count(self, name: str, n: int) -> None:
+        self.counts[name] = self.counts.get(name, 0) + int(n)
+
+    def imu(self) -> None:
+        for k, pim in enumerate(self.pims):
+            self.g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
+        n = self.pb.imu_noise
+        sig = np.r_[[n.accel_bias_sigma_mps2] * 3, [n.gyro_bias_sigma_radps] * 3]
+        self.g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
+                                                 gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        self._count("imu", len(self.pims))
+        self._count("bias_prior", 1)
+
+    def anchor(self, absolute: bool) -> None:
+        """Prior on the first pose: levelled attitude always (loose), yaw and position only
+        when no sensor fixes them (gauge freedom)."""
+        yaw_sigma = 1.0 if absolute or self.alignment.method == "gyrocompass" else 1e-6
+        sig = np.r_[0.05, 0.05, yaw_sigma, [1e3 if absolute else 1e-4] * 3]
+        self.g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(gtsam.Rot3(self.R0[0]), self.pos0[0]),
+                                          gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        self._count("pose_prior", 1)
+
+    def zupt(self) -> None:
+        st = self.pb.factors.zupt
+        sv = st.sigma_velocity_mm_per_s * 1e-3
+        sr = st.sigma_rate_deg_per_h * DEG / 3600.0
+        vel_noise = gtsam.noiseModel.Isotropic.Sigma(3, sv)
+        ks = np.flatnonzero(self.static)
+        for k in ks:
+            self.g.add(gtsam.PriorFactorVector(V(int(k)), np.zeros(3), vel_noise))
+        pairs = ks[:-1][np.diff(ks) == 1]
+        for k in pairs:
+            dt = self.t[k + 1] - self.t[k]
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr * dt] * 3, [sv * dt] * 3])
+            self.g.add(gtsam.BetweenFactorPose3(X(int(k)), X(int(k) + 1), gtsam.Pose3(), noise))
+        self._count("zupt_velocity", ks.size)
+        self._count("zupt_rate", pairs.size)
+
+    def gnss(self, used: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        g, st = self.pb.gnss, self.pb.factors.gnss
+        kk = nearest_sample(self.t, g.t_s[used])
+        # move each fix to its keyframe's time along the initial velocity (< half an IMU interval)
+        pos = g.pos_n[used] - self.vel0[kk] * (g.t_s[used] - self.t[kk])[:, None]
+        cov = g.cov_n[used] * st.covariance_scale + np.eye(3) * (st.min_sigma_mm * 1e-3) ** 2
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(st.huber_k)
+        for k, z, c in zip(kk, pos, cov):
+            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Gaussian.Covariance(c))
+            self.g.add(gtsam.GPSFactorArm(X(int(k)), z, g.lever_arm_b, model))
+        self._count("gnss", used.size)
+        return kk, pos
+
+    def odometer(self) -> None:
+        odo, st = self.pb.odometer, self.pb.factors.odometer
+        d = np.interp(self.t, odo.t_s, odo.distance_m)
+        delta = np.diff(d)
+        K = delta.size
+        keys_i, keys_j = X(0) + np.arange(K), X(0) + np.arange(1, K + 1)
+        keys_s = S(0) + self.seg[:-1]
+        sigma = np.full((K, 1), st.sigma_mm * 1e-3)
+        lever, axis = self.pb.trolley.wheel_lever_arm_b, self.pb.trolley.axis_b
+
+        def build(state: _State) -> fx.LinearBlocks:
+            r, J = fx.odometer_residual(state.R[:-1], state.p[:-1], state.R[1:], state.p[1:],
+                                        state.s[self.seg[:-1]], delta, lever, axis)
+            return fx.LinearBlocks([keys_i, keys_j, keys_s], J, r, sigma, st.huber_k)
+
+        self.builders.append(("odometer", build))
+        self._count("odometer", K)
+        n_seg = int(self.seg[-1]) + 1
+        self.g.add(gtsam.PriorFactorVector(S(0), np.zeros(1),
+                                           gtsam.noiseModel.Isotropic.Sigma(1, st.scale_sigma_ppm * 1e-6)))
+        rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
+        rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
+        for m in range(n_seg - 1):
+            self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
+        self._count("odometer_scale", n_seg)
+
+    def nhc(self) -> None:
+        st, tr, imu = self.pb.factors.nhc, self.pb.trolley, self.pb.imu
+        K = self.t.size
+        i1 = np.minimum(self.idx + 1, imu.t_s.size - 1)
+        w_ib_b = 0.5 * (imu.gyro_radps[self.idx] + imu.gyro_radps[i1])  # centred on the keyframe
+        omega_ie_n = geodesy.earth_rate_n(self.pb.origin)
+        lever = tr.nhc_lever_arm_b
+        keys_x, keys_v = X(0) + np.arange(K), V(0) + np.arange(K)
+        sigma = np.full((K, 2), st.sigma_mm_per_s * 1e-3)
+
+        def build(state: _State) -> fx.LinearBlocks:
+            w_nb_b = w_ib_b - np.einsum("kji,j->ki", state.R, omega_ie_n)
+            r, d_theta, d_vel = fx.nhc_residual(state.R, state.v, w_nb_b, lever, tr.R_vb)
+            d_pose = np.concatenate([d_theta, np.zeros_like(d_theta)], axis=2)
+            return fx.LinearBlocks([keys_x, keys_v], [d_pose, d_vel], r, sigma)
+
+        self.builders.append(("nhc", build))
+        self._count("nhc", K)
+
+    def inclinometer(self) -> None:
+        inc, st = self.pb.inclinometer, self.pb.factors.inclinometer
+        inside = np.flatnonzero((self.t >= inc.t_s[0]) & (self.t <= inc.t_s[-1]))
+        roll = np.interp(self.t[inside], inc.t_s, inc.roll_rad)
+        pitch = np.interp(self.t[inside], inc.t_s, inc.pitch_rad)
+        up_b = fx.up_vector_from_roll_pitch(roll, pitch) @ self.pb.trolley.R_vb  # R_vb^T up_v
+        g_n = geodesy.gravity_n(self.pos0[inside], self.pb.origin)
+        up_n = -g_n / np.linalg.norm(g_n, axis=1, keepdims=True)
+        keys = X(0) + inside
+        sigma = np.full((inside.size, 2), st.sigma_mrad * 1e-3)
+
+        def build(state: _State) -> fx.LinearBlocks:
+            r, d_theta = fx.inclinometer_residual(state.R[inside], up_n, up_b)
+            return fx.LinearBlocks([keys], [np.concatenate([d_theta, np.zeros_like(d_theta)], axis=2)], r, sigma)
+
+        self.builders.append(("inclinometer", build))
+        self._count("inclinometer", inside.size)
+
+
+# --- solving ------------------------------------------------------------------------------------------
+
+def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool) -> float:
+    state = _State.of(values, with_scale)
+    return G.graph.error(values) + sum(build(state).cost() for _, build in G.builders)
+
+
+def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool) -> gtsam.GaussianFactorGraph:
+    gfg = G.graph.linearize(values)
+    state = _State.of(values, with_scale)
+    for _, build in G.builders:
+        fx.to_jacobian_factors(build(state), gfg)
+    return gfg
+
+
+def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
+                 say: Callable[[str], None]) -> tuple[gtsam.Values, int, float, float]:
+    """Gauss-Newton with step halving. Returns (values, iterations, initial cost, final cost)."""
+    cost = cost0 = _total_cost(G, values, with_scale)
+    it = 0
+    for it in range(1, max_iterations + 1):
+        delta = _linearize(G, values, with_scale).optimize()
+        step, new_cost = 1.0, np.inf
+        while step > 1e-3:
+            new = values.retract(delta if step == 1.0 else delta.scale(step))
+            new_cost = _total_cost(G, new, with_scale)
+            if new_cost <= cost:
+                break
+            step *= 0.5
+        if not new_cost <= cost:
+            break
+        decrease = (cost - new_cost) / max(cost, 1e-300)
+        values, cost = new, new_cost
+        say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
+        if decrease < rtol:
+            break
+    return values, it, cost0, cost
+
+
+def _gnss_nis(problem: FusionProblem, values: gtsam.Values, G: _Graph) -> np.ndarray:
+    """Normalised squared residual of each used GNSS fix (3 degrees of freedom)."""
+    g, st = problem.gnss, problem.factors.gnss
+    state = _State.of(values, False)
+    kk = G.gnss_key_idx
+    pred = state.p[kk] + state.R[kk] @ g.lever_arm_b
+    cov = g.cov_n[G.gnss_used] * st.covariance_scale + np.eye(3) * (st.min_sigma_mm * 1e-3) ** 2
+    r = pred - G.gnss_pos_n
+    return np.einsum("ki,ki->k", r, np.linalg.solve(cov, r[:, :, None])[:, :, 0])
+
+
+def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
+                     step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
+    marginals = gtsam.Marginals(_linearize(G, values, with_scale), values)
+    sel = np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
+    state = _State.of(values, with_scale)
+    sig_pos = np.empty((sel.size, 3))
+    sig_att = np.empty((sel.size, 3))
+    for i, k in enumerate(sel):
+        cov = marginals.marginalCovariance(X(int(k)))
+        R = state.R[k]
+        sig_pos[i] = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T))
+        att_n = R @ cov[:3, :3] @ R.T
+        sig_att[i] = np.sqrt([cov[0, 0], cov[1, 1], att_n[2, 2]])
+    return t_key[sel], sig_pos, sig_att
+
+
+def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None) -> SmootherResult:
+    """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
+    cannot determine a trajectory."""
+    say = progress or (lambda _m: None)
+    timings: dict[str, float] = {}
+    tic = time.perf_counter()
+    imu, fs = problem.imu, problem.factors
+    if imu.t_s.size < 10:
+        raise FusionError("the IMU log holds fewer than 10 samples")
+    gnss = problem.gnss if fs.gnss.enabled else None
+    if gnss is not None and not fs.gnss.accept_float:
+        gnss = None if not np.any(gnss.fix_quality != 5) else gnss
+    extra = gnss.t_s if gnss is not None else None
+    key_idx = keyframe_indices(imu.t_s, problem.keyframes.spacing_s, extra)
+    t_key = imu.t_s[key_idx]
+    static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
+    alignment = _alignment(problem)
+    omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
+    say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
+    gravity0 = geodesy.gravity_n(np.zeros((t_key.size, 3)), problem.origin)
+    pims, params = preintegrate(imu, key_idx, problem.imu_noise, gravity0, omega_ie_n)
+    timings["preintegrate_s"] = time.perf_counter() - tic
+
+    tic = time.perf_counter()
+    R0 = _chain_rotations(alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
+    pos0, vel0 = initial_states(problem if gnss is not None else _without_gnss(problem), t_key, R0, static)
+    if fs.imu.gravity_per_position:
+        # the parameters are shared with the preintegrated measurements: set each interval's gravity
+        g_n = geodesy.gravity_n(pos0, problem.origin)
+        for k, p in enumerate(params):
+            p.n_gravity = g_n[k]
+    with_scale = problem.odometer is not None and fs.odometer.enabled
+    seg = (np.floor((t_key - t_key[0]) / fs.odometer.scale_segment_s).astype(np.int64) if with_scale else None)
+    b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg)
+    values = gtsam.Values()
+    for k in range(t_key.size):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
+        values.insert(V(k), vel0[k])
+        values.insert(B(k), gtsam.imuBias.ConstantBias())
+    if with_scale:
+        for m in range(int(seg[-1]) + 1):
+            values.insert(S(m), np.zeros(1))
+    b.imu()
+    b.anchor(absolute=gnss is not None)
+    if fs.zupt.enabled:
+        b.zupt()
+    if fs.nhc.enabled:
+        b.nhc()
+    if with_scale:
+        b.odometer()
+    if problem.inclinometer is not None and fs.inclinometer.enabled:
+        b.inclinometer()
+    base_graph, base_builders, base_counts = b.g, list(b.builders), dict(b.counts)
+    timings["build_s"] = time.perf_counter() - tic
+
+    used = np.flatnonzero(np.ones(gnss.t_s.size, bool)) if gnss is not None else np.zeros(0, np.int64)
+    rejected: list[dict] = []
+    tic = time.perf_counter()
+    iterations = 0
+    cost0 = None
+    for round_ in range(4):
+        graph = gtsam.NonlinearFactorGraph(base_graph)
+        b.g, b.counts = graph, dict(base_counts)
+        kk, z = np.zeros(0, np.int64), np.zeros((0, 3))
+        if gnss is not None and used.size:
+            kk, z = b.gnss(used)
+        G = _Graph(graph, base_builders, b.counts, kk, used, z)
+        say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors" + (f" (GNSS round {round_ + 1})" if gnss is not None else ""))
+        values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
+                                             problem.smoother.relative_tolerance, say)
+        iterations += its
+        cost0 = c0 if cost0 is None else cost0
+        if gnss is None or not used.size:
+            break
+        nis = _gnss_nis(problem, values, G)
+        bad = nis > fs.gnss.gate_chi2
+        if not np.any(bad):
+            break
+        for i, q in zip(used[bad], nis[bad]):
+            rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
+        used = used[~bad]
+    timings["solve_s"] = time.perf_counter() - tic
+
+    tic = time.perf_counter()
+    sig_t, sig_pos, sig_att = _marginal_sigmas(G, values, with_scale, t_key, problem.smoother.marginal_step_s)
+    timings["marginals_s"] = time.perf_counter() - tic
+    state = _State.of(values, with_scale)
+    biases = np.array([values.atConstantBias(B(k)).vector() for k in range(t_key.size)])
+    scale = state.s[seg] if with_scale else None
+    return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
+                          sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(cost),
+                          dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings)
+
+
+def _without_gnss(problem: FusionProblem) -> FusionProblem:
+    from dataclasses import replace
+    return replace(problem, gnss=None)
