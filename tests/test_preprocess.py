@@ -5,7 +5,6 @@ acceleration (peak 0.4 m/s^2 for a 3 m/s change in 15 s), an IMU with white nois
 vibration proportional to speed, an odometer quantised to encoder ticks.
 """
 
-import time
 
 import numpy as np
 import pytest
@@ -164,18 +163,18 @@ def test_static_bad_input():
     assert "\n" not in str(info.value)
 
 
-def test_static_fast_on_1_8_million_samples():
-    """One hour at 500 Hz (1.8e6 samples); measured ~0.2 s, bound generous for loaded machines."""
+def test_static_on_1_8_million_samples():
+    """One hour at 500 Hz (1.8e6 samples): the two long still periods, nothing else (speed is
+    measured in benchmarks/speed.py, not here)."""
     rng = np.random.default_rng(8)
     n = 1_800_000
     t = np.arange(n) / 500.0
     v = np.where((t > 600) & (t < 3000), 2.0, 0.0)
     imu = make_imu(t, v, np.zeros(n), rng, **NAV)
     odo = make_odometer(t[::5], np.cumsum(v[::5]) * 0.01)
-    start = time.perf_counter()
     intervals = detect_static_intervals(imu, odo)
-    elapsed = time.perf_counter() - start
-    assert len(intervals) == 2 and elapsed < 3.0
+    assert len(intervals) == 2
+    assert intervals[0][1] == pytest.approx(600.0, abs=0.6) and intervals[1][0] == pytest.approx(3000.0, abs=0.6)
 
 
 # --- odometer repair --------------------------------------------------------------------------
@@ -244,24 +243,25 @@ def test_odometer_adjacent_spikes_and_non_uniform_times():
     _, _, d = trolley(t - t[0], ODOMETER_SEGMENTS)
     clean = make_odometer(t, d)
     dist = clean.distance_m.copy()
-    idx = np.array([1000, 1001, 5000, 5001, 5002, 20000])
-    dist[idx] += [0.03, -0.04, 0.02, 0.05, 0.03, -0.02]
+    run = 12000 + np.arange(MAX_CONSECUTIVE_REPAIRS)            # the longest run still repaired
+    idx = np.concatenate([[1000, 1001, 5000, 5001, 5002], run, [20000]])
+    dist[idx] += np.concatenate([[0.03, -0.04, 0.02, 0.05, 0.03], 0.03 * (-1.0) ** run, [-0.02]])
     repaired, report = repair_odometer(OdometerData(t, dist, clean.ticks))
     assert [r["index"] for r in report] == idx.tolist()
     assert np.max(np.abs(repaired.distance_m - clean.distance_m)) < 1e-3
 
 
-def test_odometer_real_jump_is_accepted_not_extrapolated():
-    """A counter jump (or a gap) is no spike: after MAX_CONSECUTIVE_REPAIRS flags the
+def test_odometer_real_jump_and_gap_are_accepted_not_extrapolated():
+    """A counter jump or a data gap is no spike: after MAX_CONSECUTIVE_REPAIRS flags the
     measurements are accepted and checking restarts, instead of extrapolating for ever."""
     _, clean, _, _ = odometer_run()
-    dist = clean.distance_m.copy()
-    dist[30000:] += 0.5
+    jump_m = 0.5 * (clean.t_s >= 300.0)
+    keep = (clean.t_s < 27.0) | (clean.t_s >= 29.0)            # 2 s gap while accelerating
+    dist = clean.distance_m + jump_m
     dist[40000] += 0.03
-    repaired, report = repair_odometer(OdometerData(clean.t_s, dist, clean.ticks))
-    assert [r["index"] for r in report] == [40000]
-    assert np.max(np.abs(repaired.distance_m - clean.distance_m - 0.5 * (clean.t_s >= 300.0))) < 1e-3
-    assert MAX_CONSECUTIVE_REPAIRS >= 2
+    repaired, report = repair_odometer(OdometerData(clean.t_s[keep], dist[keep], clean.ticks[keep]))
+    assert [r["t_s"] for r in report] == [clean.t_s[40000]]
+    assert np.max(np.abs(repaired.distance_m - (clean.distance_m + jump_m)[keep])) < 1e-3
 
 
 def test_odometer_bad_input():

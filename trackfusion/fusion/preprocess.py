@@ -26,7 +26,7 @@ __all__ = ["detect_static_intervals", "repair_odometer", "sensor_times_to_imu_cl
 
 #: at most this many consecutive samples are repaired; a longer run is a real discontinuity
 #: (counter jump, data gap, manoeuvre the cubic cannot follow), accepted as measured
-MAX_CONSECUTIVE_REPAIRS = 3
+MAX_CONSECUTIVE_REPAIRS = 5
 
 #: a moving window spanning more than this many times its nominal duration contains a data gap
 _GAP_FACTOR = 1.5

@@ -26,7 +26,7 @@ class _Factor(_Strict):
 
 
 class ImuFactorSettings(_Factor):
-    """CombinedImuFactor between keyframes; ``earth_rate`` and ``gravity_per_position`` may be
+    """Preintegrated IMU factor between keyframes; ``earth_rate`` and ``gravity_per_position`` may be
     switched off only to demonstrate what they do (tests)."""
 
     earth_rate: bool = True
@@ -94,7 +94,11 @@ class FactorSettings(_Strict):
 
 
 class KeyframeSettings(_Strict):
+    """``spacing_s``: time between keyframes; ``bias_segment_s``: length of the segments over
+    which one IMU bias state holds (random walk between segments; fusion/preintegration.py)."""
+
     spacing_s: float = Field(0.1, gt=0, le=5.0)
+    bias_segment_s: float = Field(300.0, gt=0)
 
 
 class StaticSettings(_Strict):

@@ -1,8 +1,9 @@
 """Batch factor-graph smoother (DESIGN.md section 5).
 
 Variables per keyframe k: pose ``X(k)`` (``R_nb``, IMU origin in ``n``), velocity ``V(k)``
-[m/s, n], IMU bias ``B(k)``; odometer scale error ``S(m)`` per scale segment.
-Factors: ``CombinedImuFactor`` between keyframes; bias and scale priors; ZUPT (zero
+[m/s, n]; IMU bias ``B(m)`` per bias segment and odometer scale error ``S(m)`` per scale
+segment (random walks between segments). Factors: ``ImuFactor`` between keyframes
+(why not ``CombinedImuFactor``: fusion/preintegration.py); bias and scale priors; ZUPT (zero
 velocity prior, zero relative pose between static keyframes); GNSS (``GPSFactorArm``,
 Huber, gated); and the vectorised factors of :mod:`.factors` (NHC, odometer,
 inclinometer). Gauss-Newton with a backtracking line search: GTSAM linearises its
@@ -72,12 +73,17 @@ def nearest_sample(t_s: np.ndarray, t_query: np.ndarray) -> np.ndarray:
 def keyframe_indices(t_s: np.ndarray, spacing_s: float, extra_t_s: np.ndarray | None = None) -> np.ndarray:
     """Sorted unique IMU sample indices (K,) of keyframes: a regular grid of ``spacing_s``, the
     first and last samples, and the samples nearest to ``extra_t_s`` (aiding epochs)."""
-    grid = nearest_sample(t_s, np.arange(t_s[0], t_s[-1], spacing_s))
-    parts = [grid, [0, t_s.size - 1]]
+    fixed = [np.array([0, t_s.size - 1])]
     if extra_t_s is not None and extra_t_s.size:
         inside = extra_t_s[(extra_t_s >= t_s[0]) & (extra_t_s <= t_s[-1])]
-        parts.append(nearest_sample(t_s, inside))
-    return np.unique(np.concatenate(parts).astype(np.int64))
+        fixed.append(nearest_sample(t_s, inside))
+    fixed_idx = np.unique(np.concatenate(fixed).astype(np.int64))
+    grid = np.unique(nearest_sample(t_s, np.arange(t_s[0], t_s[-1], spacing_s)))
+    # a grid keyframe closer than a quarter spacing to a fixed one would make a very short,
+    # badly conditioned interval: drop it
+    j = np.clip(np.searchsorted(t_s[fixed_idx], t_s[grid]), 1, fixed_idx.size - 1)
+    gap = np.minimum(np.abs(t_s[grid] - t_s[fixed_idx[j - 1]]), np.abs(t_s[grid] - t_s[fixed_idx[j]]))
+    return np.unique(np.concatenate([fixed_idx, grid[gap >= 0.25 * spacing_s]]))
 
 
 def static_mask(t_s: np.ndarray, intervals: list[tuple[float, float]]) -> np.ndarray:
@@ -179,9 +185,11 @@ class _Builder:
     """Adds every factor of a problem to a graph, given keyframes and the initial estimate."""
 
     def __init__(self, problem: FusionProblem, t_key: np.ndarray, key_idx: np.ndarray, pims, static: np.ndarray,
-                 pos0: np.ndarray, R0: np.ndarray, vel0: np.ndarray, alignment: Alignment, seg: np.ndarray | None):
+                 pos0: np.ndarray, R0: np.ndarray, vel0: np.ndarray, alignment: Alignment, seg: np.ndarray | None,
+                 bias_seg: np.ndarray):
         self.pb, self.t, self.idx, self.pims, self.static = problem, t_key, key_idx, pims, static
         self.pos0, self.R0, self.vel0, self.alignment, self.seg = pos0, R0, vel0, alignment, seg
+        self.bias_seg = bias_seg
         self.g = gtsam.NonlinearFactorGraph()
         self.builders: list = []
         self.counts: dict[str, int] = {}
@@ -191,13 +199,20 @@ class _Builder:
 
     def imu(self) -> None:
         for k, pim in enumerate(self.pims):
-            self.g.add(gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pim))
+            self.g.add(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(int(self.bias_seg[k])), pim))
         n = self.pb.imu_noise
         sig = np.r_[[n.accel_bias_sigma_mps2] * 3, [n.gyro_bias_sigma_radps] * 3]
         self.g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
                                                  gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        n_seg = int(self.bias_seg[-1]) + 1
+        T = self.pb.keyframes.bias_segment_s
+        rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.r_[[n.accel_bias_rw_psd * T] * 3,
+                                                            [n.gyro_bias_rw_psd * T] * 3]))
+        for m in range(n_seg - 1):
+            self.g.add(gtsam.BetweenFactorConstantBias(B(m), B(m + 1), gtsam.imuBias.ConstantBias(), rw))
         self._count("imu", len(self.pims))
         self._count("bias_prior", 1)
+        self._count("bias_random_walk", n_seg - 1)
 
     def anchor(self, absolute: bool) -> None:
         """Prior on the first pose: levelled attitude always (loose), yaw and position only
@@ -308,6 +323,20 @@ def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool) -> float:
     return G.graph.error(values) + sum(build(state).cost() for _, build in G.builders)
 
 
+def cost_breakdown(G: _Graph, values: gtsam.Values, with_scale: bool) -> dict[str, float]:
+    """Cost (0.5 sum of squared whitened residuals) per factor type at ``values``."""
+    out: dict[str, float] = {}
+    for i in range(G.graph.size()):
+        f = G.graph.at(i)
+        if f is not None:
+            name = type(f).__name__
+            out[name] = out.get(name, 0.0) + f.error(values)
+    state = _State.of(values, with_scale)
+    for name, build in G.builders:
+        out[name] = build(state).cost()
+    return out
+
+
 def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool) -> gtsam.GaussianFactorGraph:
     gfg = G.graph.linearize(values)
     state = _State.of(values, with_scale)
@@ -316,13 +345,31 @@ def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool) -> gtsam.Gauss
     return gfg
 
 
+def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
+    """Multifrontal QR elimination (COLAMD order).
+
+    QR, not Cholesky: the whitened Jacobian spans seven orders of magnitude (navigation-grade
+    gyro noise over 0.1 s against a loose NHC or GNSS), which the normal equations square past
+    double precision; GTSAM's Cholesky then reports an indeterminate system on data that is
+    perfectly determined (measured on the open-track scenario with ``nhc.sigma_mm_per_s: 30``).
+    """
+    try:
+        return gfg.eliminateMultifrontal(gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR)
+    except RuntimeError as exc:
+        lines = str(exc).splitlines()
+        near = [i for i, ln in enumerate(lines) if "near variable" in ln]
+        first = lines[near[0] + 1].strip() if near and near[0] + 1 < len(lines) else ""
+        raise FusionError("the factor graph is singular (a state no measurement determines"
+                          + (f"; {first}" if first else "") + ")") from None
+
+
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
                  say: Callable[[str], None]) -> tuple[gtsam.Values, int, float, float]:
     """Gauss-Newton with step halving. Returns (values, iterations, initial cost, final cost)."""
     cost = cost0 = _total_cost(G, values, with_scale)
     it = 0
     for it in range(1, max_iterations + 1):
-        delta = _linearize(G, values, with_scale).optimize()
+        delta = _eliminate(_linearize(G, values, with_scale)).optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
@@ -354,13 +401,13 @@ def _gnss_nis(problem: FusionProblem, values: gtsam.Values, G: _Graph) -> np.nda
 def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
                      step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
-    marginals = gtsam.Marginals(_linearize(G, values, with_scale), values)
+    tree = _eliminate(_linearize(G, values, with_scale))
     sel = np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
     state = _State.of(values, with_scale)
     sig_pos = np.empty((sel.size, 3))
     sig_att = np.empty((sel.size, 3))
     for i, k in enumerate(sel):
-        cov = marginals.marginalCovariance(X(int(k)))
+        cov = tree.marginalCovariance(X(int(k)))
         R = state.R[k]
         sig_pos[i] = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T))
         att_n = R @ cov[:3, :3] @ R.T
@@ -378,8 +425,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if imu.t_s.size < 10:
         raise FusionError("the IMU log holds fewer than 10 samples")
     gnss = problem.gnss if fs.gnss.enabled else None
-    if gnss is not None and not fs.gnss.accept_float:
-        gnss = None if not np.any(gnss.fix_quality != 5) else gnss
     extra = gnss.t_s if gnss is not None else None
     key_idx = keyframe_indices(imu.t_s, problem.keyframes.spacing_s, extra)
     t_key = imu.t_s[key_idx]
@@ -401,12 +446,16 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             p.n_gravity = g_n[k]
     with_scale = problem.odometer is not None and fs.odometer.enabled
     seg = (np.floor((t_key - t_key[0]) / fs.odometer.scale_segment_s).astype(np.int64) if with_scale else None)
-    b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg)
+    # bias segment of each interval (the last keyframe belongs to the last interval's)
+    bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
+    bias_seg[-1] = bias_seg[-2]
+    b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg, bias_seg)
     values = gtsam.Values()
     for k in range(t_key.size):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
         values.insert(V(k), vel0[k])
-        values.insert(B(k), gtsam.imuBias.ConstantBias())
+    for m in range(int(bias_seg[-1]) + 1):
+        values.insert(B(m), gtsam.imuBias.ConstantBias())
     if with_scale:
         for m in range(int(seg[-1]) + 1):
             values.insert(S(m), np.zeros(1))
@@ -423,7 +472,12 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     base_graph, base_builders, base_counts = b.g, list(b.builders), dict(b.counts)
     timings["build_s"] = time.perf_counter() - tic
 
-    used = np.flatnonzero(np.ones(gnss.t_s.size, bool)) if gnss is not None else np.zeros(0, np.int64)
+    used = np.zeros(0, np.int64)
+    if gnss is not None:
+        ok = (gnss.t_s >= t_key[0]) & (gnss.t_s <= t_key[-1])
+        if not fs.gnss.accept_float:
+            ok &= gnss.fix_quality != 5
+        used = np.flatnonzero(ok)
     rejected: list[dict] = []
     tic = time.perf_counter()
     iterations = 0
@@ -455,7 +509,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     sig_t, sig_pos, sig_att = _marginal_sigmas(G, values, with_scale, t_key, problem.smoother.marginal_step_s)
     timings["marginals_s"] = time.perf_counter() - tic
     state = _State.of(values, with_scale)
-    biases = np.array([values.atConstantBias(B(k)).vector() for k in range(t_key.size)])
+    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     scale = state.s[seg] if with_scale else None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(cost),
