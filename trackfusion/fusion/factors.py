@@ -42,10 +42,16 @@ class LinearBlocks:
     residual: np.ndarray
     sigma: np.ndarray
     huber_k: float | None = None
+    whiten: np.ndarray | None = None  # (K, m, m) square-root information; replaces sigma
+
+    def _w(self, x: np.ndarray) -> np.ndarray:
+        if self.whiten is None:
+            return x / (self.sigma if x.ndim == 2 else self.sigma[:, :, None])
+        return self.whiten @ x if x.ndim == 3 else np.einsum("kij,kj->ki", self.whiten, x)
 
     def whitened(self) -> np.ndarray:
         """Whitened residuals (K, m)."""
-        return self.residual / self.sigma
+        return self._w(self.residual)
 
     def weights(self) -> np.ndarray:
         """Huber IRLS weight per factor (K,) from the norm of its whitened residual."""
@@ -65,10 +71,9 @@ class LinearBlocks:
 
 def to_jacobian_factors(blocks: LinearBlocks, graph: gtsam.GaussianFactorGraph) -> None:
     """Append one whitened (and Huber-reweighted) ``JacobianFactor`` per factor to ``graph``."""
-    sw = np.sqrt(blocks.weights())[:, None]
-    scale = sw / blocks.sigma  # (K, m)
-    A = [J * scale[:, :, None] for J in blocks.jacobians]
-    b = -blocks.residual * scale
+    sw = np.sqrt(blocks.weights())
+    A = [blocks._w(J) * sw[:, None, None] for J in blocks.jacobians]
+    b = -blocks.whitened() * sw[:, None]
     unit = gtsam.noiseModel.Unit.Create(b.shape[1])
     keys = [k.tolist() for k in blocks.keys]
     if len(A) == 1:
@@ -132,6 +137,29 @@ def odometer_residual(R_i: np.ndarray, p_i: np.ndarray, R_j: np.ndarray, p_j: np
     d_pose_j = d_pose_j * k1[:, :, None]
     d_scale = proj[:, None, None]
     return r[:, None], [d_pose_i, d_pose_j, d_scale]
+
+
+# --- GNSS antenna position ------------------------------------------------------------------------
+
+def gnss_residual(R_nb: np.ndarray, pos_n: np.ndarray, lever_arm_b: np.ndarray, fix_n: np.ndarray,
+                  error_n: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Antenna position ``p + R lever_arm_b`` (+ the correlated GNSS error state) minus the fix.
+
+    R_nb (K,3,3), pos_n (K,3) [m], lever_arm_b (3,) [m], fix_n (K,3) [m], error_n (K,3) [m] or None.
+    Returns r (K,3) [m] and d/pose (K,3,6); d/error is the identity.
+    """
+    r = pos_n + R_nb @ lever_arm_b - fix_n
+    if error_n is not None:
+        r = r + error_n
+    d_theta = -R_nb @ skew(lever_arm_b)
+    return r, np.concatenate([d_theta, R_nb], axis=2)
+
+
+def gauss_markov_residual(e_i: np.ndarray, e_j: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """First-order Gauss-Markov step ``e_j - phi e_i`` (K,3) with ``phi = exp(-dt/tau)`` (K,3);
+    Jacobians [d/e_i (K,3,3), d/e_j (K,3,3)]."""
+    eye = np.broadcast_to(np.eye(3), (e_i.shape[0], 3, 3))
+    return e_j - phi * e_i, [-phi[:, :, None] * eye, eye]
 
 
 # --- inclinometer ------------------------------------------------------------------------------

@@ -34,9 +34,11 @@ class ImuFactorSettings(_Factor):
 
 
 class ZuptSettings(_Factor):
-    """Zero velocity and zero angular rate on detected static intervals."""
+    """Zero velocity, and zero rotation and displacement between consecutive keyframes, on
+    detected static intervals."""
 
     sigma_velocity_mm_per_s: float = Field(0.2, gt=0)
+    sigma_displacement_mm: float = Field(0.01, gt=0)
     sigma_rate_deg_per_h: float = Field(0.1, gt=0)
 
 
@@ -44,7 +46,7 @@ class NhcSettings(_Factor):
     """Zero lateral and vertical velocity (in ``v``) of the point midway between the
     reference-rail wheel contacts (the trolley frame's origin)."""
 
-    sigma_mm_per_s: float = Field(2.0, gt=0)
+    sigma_mm_per_s: float = Field(1.0, gt=0)
 
 
 class OdometerFactorSettings(_Factor):
@@ -60,11 +62,20 @@ class OdometerFactorSettings(_Factor):
 
 
 class GnssFactorSettings(_Factor):
-    """Antenna position with lever arm; reported covariance times ``covariance_scale``, floored
-    at ``min_sigma_mm``; Huber loss; fixes whose normalised residual exceeds ``gate_chi2``
-    (3 degrees of freedom) after a solve are rejected and the graph solved again."""
+    """Antenna position with lever arm; Huber loss; fixes whose normalised residual exceeds
+    ``gate_chi2`` (3 degrees of freedom) after a solve are rejected and the graph solved again.
+
+    The fix error is modelled as white noise plus a correlated part (first-order Gauss-Markov,
+    ``correlated_sigma_*_mm`` per horizontal / vertical axis, ``correlation_time_s``: multipath,
+    residual atmosphere) estimated as a state per fix. The white part is the reported
+    covariance times ``covariance_scale`` minus the correlated variance, at least
+    ``min_sigma_mm``. Set both correlated sigmas to 0 to treat fixes as white.
+    """
 
     covariance_scale: float = Field(1.0, gt=0)
+    correlated_sigma_h_mm: float = Field(8.0, ge=0)
+    correlated_sigma_v_mm: float = Field(15.0, ge=0)
+    correlation_time_s: float = Field(300.0, gt=0)
     min_sigma_mm: float = Field(2.0, gt=0)
     huber_k: float = Field(2.0, gt=0)
     gate_chi2: float = Field(21.1, gt=0)

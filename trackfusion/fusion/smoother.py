@@ -18,7 +18,7 @@ from typing import Callable
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, S, V, X
+from gtsam.symbol_shorthand import B, E, S, V, X
 
 from .. import geodesy
 from ..errors import FusionError
@@ -162,23 +162,25 @@ class _Graph:
     graph: gtsam.NonlinearFactorGraph
     builders: list[tuple[str, Callable[["_State"], fx.LinearBlocks]]]
     counts: dict[str, int]
-    gnss_key_idx: np.ndarray  # keyframe index of each used GNSS fix
-    gnss_used: np.ndarray  # indices into problem.gnss of the used fixes
-    gnss_pos_n: np.ndarray  # the fixes moved to their keyframes' times (M,3)
+    gnss: Callable[["_State"], fx.LinearBlocks] | None = None  # builder of the GNSS position factors
 
 
 @dataclass
 class _State:
+    """The estimate as arrays: R (K,3,3), p (K,3), v (K,3), odometer scale s (M,), GNSS errors e (F,3)."""
+
     R: np.ndarray
     p: np.ndarray
     v: np.ndarray
     s: np.ndarray | None
+    e: np.ndarray
 
     @classmethod
     def of(cls, values: gtsam.Values, with_scale: bool) -> "_State":
         P = gtsam.utilities.extractPose3(values)
         s = gtsam.utilities.extractVectors(values, "s")[:, 0] if with_scale else None
-        return cls(P[:, :9].reshape(-1, 3, 3), P[:, 9:].copy(), gtsam.utilities.extractVectors(values, "v"), s)
+        return cls(P[:, :9].reshape(-1, 3, 3), P[:, 9:].copy(), gtsam.utilities.extractVectors(values, "v"), s,
+                   gtsam.utilities.extractVectors(values, "e"))
 
 
 class _Builder:
@@ -234,23 +236,56 @@ class _Builder:
         pairs = ks[:-1][np.diff(ks) == 1]
         for k in pairs:
             dt = self.t[k + 1] - self.t[k]
-            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr * dt] * 3, [sv * dt] * 3])
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.r_[[sr * dt] * 3, [st.sigma_displacement_mm * 1e-3] * 3])
             self.g.add(gtsam.BetweenFactorPose3(X(int(k)), X(int(k) + 1), gtsam.Pose3(), noise))
         self._count("zupt_velocity", ks.size)
         self._count("zupt_rate", pairs.size)
 
-    def gnss(self, used: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def gnss(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
+        """Factors of the used fixes (indices into the GNSS data); with a correlated-error model,
+        one error state ``E(i)`` per used fix ``i`` (inserted into / kept in ``values``) joined by
+        first-order Gauss-Markov steps. Returns the builder of the position factors (for gating)."""
         g, st = self.pb.gnss, self.pb.factors.gnss
         kk = nearest_sample(self.t, g.t_s[used])
         # move each fix to its keyframe's time along the initial velocity (< half an IMU interval)
-        pos = g.pos_n[used] - self.vel0[kk] * (g.t_s[used] - self.t[kk])[:, None]
-        cov = g.cov_n[used] * st.covariance_scale + np.eye(3) * (st.min_sigma_mm * 1e-3) ** 2
-        huber = gtsam.noiseModel.mEstimator.Huber.Create(st.huber_k)
-        for k, z, c in zip(kk, pos, cov):
-            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Gaussian.Covariance(c))
-            self.g.add(gtsam.GPSFactorArm(X(int(k)), z, g.lever_arm_b, model))
+        fix = g.pos_n[used] - self.vel0[kk] * (g.t_s[used] - self.t[kk])[:, None]
+        corr = np.array([st.correlated_sigma_h_mm] * 2 + [st.correlated_sigma_v_mm]) * 1e-3
+        W = np.linalg.inv(np.linalg.cholesky(white_covariance(g.cov_n[used] * st.covariance_scale, corr,
+                                                              st.min_sigma_mm * 1e-3)))
+        keys_x, keys_e = X(0) + kk, E(0) + used
+        ones = np.ones((used.size, 3))
+        with_error = bool(np.any(corr > 0))
+        lever = g.lever_arm_b
+
+        def build(state: _State) -> fx.LinearBlocks:
+            r, J = fx.gnss_residual(state.R[kk], state.p[kk], lever, fix, state.e if with_error else None)
+            if with_error:
+                return fx.LinearBlocks([keys_x, keys_e], [J, np.broadcast_to(np.eye(3), r.shape + (3,))], r, ones,
+                                       st.huber_k, W)
+            return fx.LinearBlocks([keys_x], [J], r, ones, st.huber_k, W)
+
+        self.builders.append(("gnss", build))
         self._count("gnss", used.size)
-        return kk, pos
+        if with_error:
+            self._gnss_error_states(used, values, corr, st.correlation_time_s)
+        return build
+
+    def _gnss_error_states(self, used: np.ndarray, values: gtsam.Values, corr: np.ndarray, tau_s: float) -> None:
+        g = self.pb.gnss
+        for i in used:
+            if not values.exists(E(int(i))):
+                values.insert(E(int(i)), np.zeros(3))
+        self.g.add(gtsam.PriorFactorVector(E(int(used[0])), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(corr)))
+        phi = np.exp(-np.diff(g.t_s[used]) / tau_s)[:, None] * np.ones(3)
+        sigma = np.maximum(corr * np.sqrt(1.0 - phi**2), 1e-9)
+        keys_i, keys_j = E(0) + used[:-1], E(0) + used[1:]
+
+        def build(state: _State) -> fx.LinearBlocks:
+            r, J = fx.gauss_markov_residual(state.e[:-1], state.e[1:], phi)
+            return fx.LinearBlocks([keys_i, keys_j], J, r, sigma)
+
+        self.builders.append(("gnss_error", build))
+        self._count("gnss_error", used.size)
 
     def odometer(self) -> None:
         odo, st = self.pb.odometer, self.pb.factors.odometer
@@ -387,15 +422,18 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     return values, it, cost0, cost
 
 
-def _gnss_nis(problem: FusionProblem, values: gtsam.Values, G: _Graph) -> np.ndarray:
-    """Normalised squared residual of each used GNSS fix (3 degrees of freedom)."""
-    g, st = problem.gnss, problem.factors.gnss
-    state = _State.of(values, False)
-    kk = G.gnss_key_idx
-    pred = state.p[kk] + state.R[kk] @ g.lever_arm_b
-    cov = g.cov_n[G.gnss_used] * st.covariance_scale + np.eye(3) * (st.min_sigma_mm * 1e-3) ** 2
-    r = pred - G.gnss_pos_n
-    return np.einsum("ki,ki->k", r, np.linalg.solve(cov, r[:, :, None])[:, :, 0])
+def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
+    """The white part (K,3,3) of reported fix covariances (K,3,3) [m^2]: minus the correlated
+    error's variance (diagonal, per axis), with every eigenvalue at least ``min_sigma_m^2``."""
+    white = cov_n - np.diag(correlated_sigma_m**2)
+    lam, vec = np.linalg.eigh(white)
+    lam = np.maximum(lam, min_sigma_m**2)
+    return vec @ (lam[:, :, None] * np.swapaxes(vec, -1, -2))
+
+
+def _gnss_nis(G: _Graph, values: gtsam.Values, with_scale: bool) -> np.ndarray:
+    """Normalised squared residual of each used GNSS fix (3 degrees of freedom, white noise)."""
+    return np.sum(G.gnss(_State.of(values, with_scale)).whitened() ** 2, axis=1)
 
 
 def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
@@ -484,24 +522,25 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     cost0 = None
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
-        b.g, b.counts = graph, dict(base_counts)
-        kk, z = np.zeros(0, np.int64), np.zeros((0, 3))
-        if gnss is not None and used.size:
-            kk, z = b.gnss(used)
-        G = _Graph(graph, base_builders, b.counts, kk, used, z)
-        say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors" + (f" (GNSS round {round_ + 1})" if gnss is not None else ""))
+        b.g, b.counts, b.builders = graph, dict(base_counts), list(base_builders)
+        gnss_build = b.gnss(used, values) if gnss is not None and used.size else None
+        G = _Graph(graph, b.builders, b.counts, gnss_build)
+        say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
+            + (f" (GNSS round {round_ + 1})" if gnss is not None else ""))
         values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
                                              problem.smoother.relative_tolerance, say)
         iterations += its
         cost0 = c0 if cost0 is None else cost0
-        if gnss is None or not used.size:
+        if gnss_build is None:
             break
-        nis = _gnss_nis(problem, values, G)
+        nis = _gnss_nis(G, values, with_scale)
         bad = nis > fs.gnss.gate_chi2
         if not np.any(bad):
             break
         for i, q in zip(used[bad], nis[bad]):
             rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
+            if values.exists(E(int(i))):
+                values.erase(E(int(i)))
         used = used[~bad]
     timings["solve_s"] = time.perf_counter() - tic
 
