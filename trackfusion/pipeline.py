@@ -245,9 +245,13 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         info["odometer_gross_errors"] = repaired
         say(f"odometer: {odo.t_s.size} records, {len(repaired)} gross errors repaired")
     st = cfg.static
+    imu_spec = ImuSpec(**sensors.imu.model_dump())
+    imu_rate_hz = 1.0 / float(np.median(np.diff(log.imu.t_s)))
+    gyro_thr, accel_thr = st.thresholds(imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.accel_vrw_mps_per_sqrt_h,
+                                        imu_rate_hz)
     static = preprocess.detect_static_intervals(
-        log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(st.gyro_std_deg_per_s),
-        accel_std_mps2=st.accel_std_mps2, max_odometer_speed_mps=st.max_odometer_speed_mps,
+        log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(gyro_thr),
+        accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
@@ -260,7 +264,6 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         t = preprocess.sensor_times_to_imu_clock(inc.t_s, sensors.inclinometer.clock_offset_s)
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
     tr = cfg.trolley
-    imu_spec = ImuSpec(**sensors.imu.model_dump())
     problem = FusionProblem(
         imu=log.imu, imu_noise=ImuNoise.from_spec(imu_spec), imu_gyro_bias_deg_per_h=imu_spec.gyro_bias_deg_per_h,
         origin=origin, trolley=TrolleyFrame.from_angles(tr.mounting_ypr_deg, tr.lever_arm_imu_v_m, tr.wheelbase_m,

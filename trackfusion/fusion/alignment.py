@@ -22,14 +22,17 @@ from ..rotations import R_from_ypr
 
 #: gyro bias below which gyrocompassing is trusted [deg/h] (heading error ~ bias/(15 cos lat) rad)
 GYROCOMPASS_MAX_BIAS_DEG_PER_H = 0.1
+#: without any displacement, a coarse gyrocompass (a FOG's 0.5 deg/h: ~2.5 deg) beats no heading
+COARSE_GYROCOMPASS_MAX_BIAS_DEG_PER_H = 2.0
 
 
 @dataclass
 class Alignment:
     """Initial attitude of ``b`` at the first keyframe and how it was found.
 
-    roll_rad, pitch_rad, yaw_rad [rad]; method: ``"gyrocompass"``, ``"displacement"`` or
-    ``"none"`` (no heading information: yaw 0, trajectory in an arbitrary azimuth);
+    roll_rad, pitch_rad, yaw_rad [rad]; method: ``"gyrocompass"``, ``"displacement"``,
+    ``"coarse-gyrocompass"`` (gyros of up to 2 deg/h and nothing better: heading good to a few
+    degrees) or ``"none"`` (no heading information: yaw 0, trajectory in an arbitrary azimuth);
     static_s: duration of the static data used [s].
     """
 
@@ -96,4 +99,6 @@ def align(gyro_b: np.ndarray, accel_b: np.ndarray, lat_rad: float, gyro_bias_deg
         d, forward = displacement
         return Alignment(roll, pitch, heading_from_displacement(d, forward, R_vb, roll, pitch),
                          "displacement", static_s)
+    if gyro_bias_deg_per_h <= COARSE_GYROCOMPASS_MAX_BIAS_DEG_PER_H and horizontal_rate > 1e-6:
+        return Alignment(roll, pitch, gyrocompass(gyro_b.mean(axis=0), roll, pitch), "coarse-gyrocompass", static_s)
     return Alignment(roll, pitch, 0.0, "none", static_s)

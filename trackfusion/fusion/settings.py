@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
@@ -113,26 +115,36 @@ class KeyframeSettings(_Strict):
 
 
 class StaticSettings(_Strict):
-    """Static-interval detection (moving standard deviations over ``window_s``)."""
+    """Static-interval detection (moving standard deviations over ``window_s``).
+
+    The gyro and accelerometer thresholds default to four times the IMU's per-sample white
+    noise (from its specification), but at least 0.01 deg/s and 0.005 m/s^2.
+    """
 
     window_s: float = Field(0.5, gt=0)
-    gyro_std_deg_per_s: float = Field(0.01, gt=0)
-    accel_std_mps2: float = Field(0.005, gt=0)
+    gyro_std_deg_per_s: float | None = Field(None, gt=0)
+    accel_std_mps2: float | None = Field(None, gt=0)
     max_odometer_speed_mps: float = Field(0.001, gt=0)
     min_duration_s: float = Field(2.0, gt=0)
 
+    def thresholds(self, gyro_arw_deg_per_sqrt_h: float, accel_vrw_mps_per_sqrt_h: float,
+                   rate_hz: float) -> tuple[float, float]:
+        """(gyro [deg/s], accel [m/s^2]) thresholds for an IMU of this noise and rate."""
+        root = np.sqrt(rate_hz) / 60.0  # per-sample sigma = density [unit/sqrt(h)] / 60 * sqrt(rate)
+        gyro = self.gyro_std_deg_per_s or max(0.01, 4.0 * gyro_arw_deg_per_sqrt_h * root)
+        accel = self.accel_std_mps2 or max(0.005, 4.0 * accel_vrw_mps_per_sqrt_h * root)
+        return gyro, accel
+
 
 class SmootherSettings(_Strict):
-    """Gauss-Newton iterations; overlapping chunks bound memory on long runs."""
+    """Gauss-Newton iterations (stop when the cost falls by less than ``relative_tolerance``)
+    and the spacing of the marginal covariances behind the sigma columns.
+
+    The whole run is solved as one batch; memory grows with the run's length (about 1.5 GB
+    for an hour at 500 Hz, benchmarks/speed.py). Overlapping chunks for longer runs are not
+    implemented yet.
+    """
 
     max_iterations: int = Field(10, ge=1)
     relative_tolerance: float = Field(1e-7, gt=0)
-    chunk_s: float = Field(1800.0, gt=60)
-    overlap_s: float = Field(60.0, gt=0)
     marginal_step_s: float = Field(1.0, gt=0)
-
-    @model_validator(mode="after")
-    def _overlap_fits(self) -> "SmootherSettings":
-        if not self.overlap_s * 3 <= self.chunk_s:
-            raise ValueError("overlap_s must be at most a third of chunk_s")
-        return self

@@ -79,7 +79,7 @@ def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel
         fwd_p[:, j + 1] = p + v * hj + 0.5 * a * hj**2
         fwd_v[:, j + 1] = v + a * hj
         fwd_R[:, j + 1] = so3_exp(-omega_ie_n * hj) @ R @ so3_exp(w[:, j] * hj)
-    bwd_R, bwd_p, bwd_v = (np.empty_like(a) for a in (fwd_R, fwd_p, fwd_v))
+    bwd_R, bwd_p, bwd_v = (np.zeros_like(a) for a in (fwd_R, fwd_p, fwd_v))  # padding stays finite
     last = valid.sum(axis=1)  # offset of the next keyframe in each interval
     rows = np.arange(K1)
     bwd_R[rows, last], bwd_p[rows, last], bwd_v[rows, last] = R_nb[1:], pos_n[1:], vel_n[1:]
