@@ -19,7 +19,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import ConfigError, SensorDataError
-from ..sensors.types import ImuData, OdometerData
+from ..sensors.types import ImuData, OdometerData, finite_array
 
 __all__ = ["detect_static_intervals", "repair_odometer", "sensor_times_to_imu_clock",
            "MAX_CONSECUTIVE_REPAIRS"]
@@ -46,11 +46,7 @@ def _times_s(t_s, name: str, min_samples: int) -> np.ndarray:
 
 def _samples(x, n: int, name: str, field: str, width: int | None = None) -> np.ndarray:
     """Validated finite float samples of shape (n,) or (n, width)."""
-    a = np.asarray(x, dtype=float)
-    shape = (n,) if width is None else (n, width)
-    if a.shape != shape or not np.all(np.isfinite(a)):
-        raise SensorDataError(f"{name}: {field} must be finite with shape {shape}, got {a.shape}")
-    return a
+    return finite_array(x, n, name, field, width, SensorDataError)
 
 
 def _positive(value: float, name: str) -> float:

@@ -436,6 +436,14 @@ def _gnss_nis(G: _Graph, values: gtsam.Values, with_scale: bool) -> np.ndarray:
     return np.sum(G.gnss(_State.of(values, with_scale)).whitened() ** 2, axis=1)
 
 
+def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
+    """Marginal covariance of one variable, by QR (see :func:`_eliminate`) down the tree:
+    the marginal is a conditional ``R x = d`` with unit noise, so the covariance is
+    ``R^-1 R^-T``."""
+    R_inv = np.linalg.inv(tree.marginalFactor(key, gtsam.EliminateQR).R())
+    return R_inv @ R_inv.T
+
+
 def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
                      step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
@@ -445,7 +453,7 @@ def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: n
     sig_pos = np.empty((sel.size, 3))
     sig_att = np.empty((sel.size, 3))
     for i, k in enumerate(sel):
-        cov = tree.marginalCovariance(X(int(k)))
+        cov = _marginal_covariance(tree, X(int(k)))
         R = state.R[k]
         sig_pos[i] = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T))
         att_n = R @ cov[:3, :3] @ R.T

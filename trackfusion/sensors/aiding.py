@@ -25,7 +25,7 @@ from .. import geodesy
 from ..errors import SimulationError
 from ..registration.polar import DEFAULT_REFRACTION_K, StationSetup, n_to_polar
 from . import noise
-from .types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData
+from .types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
 
 ARCSEC = np.pi / 180.0 / 3600.0  #: one arcsecond [rad]
 
@@ -65,11 +65,7 @@ def _times(t_s, name: str) -> np.ndarray:
 
 def _series(x, n: int, name: str, field: str, width: int | None = None) -> np.ndarray:
     """Validated truth series of n rows ((n,) or (n, width)), finite."""
-    a = np.asarray(x, dtype=float)
-    shape = (n,) if width is None else (n, width)
-    if a.shape != shape or not np.all(np.isfinite(a)):
-        raise SimulationError(f"{name}: {field} must be finite with shape {shape}, got {a.shape}")
-    return a
+    return finite_array(x, n, name, field, width, SimulationError)
 
 
 def _step_s(t: np.ndarray, rate_hz: float) -> float:

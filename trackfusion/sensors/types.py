@@ -13,6 +13,16 @@ from typing import Any
 import numpy as np
 
 
+def finite_array(x, n: int, name: str, field_name: str, width: int | None, error: type[Exception]) -> np.ndarray:
+    """``x`` as a float array of shape (n,) or (n, width) with finite values; otherwise raise
+    ``error`` with one line naming ``name`` and ``field_name``."""
+    a = np.asarray(x, dtype=float)
+    shape = (n,) if width is None else (n, width)
+    if a.shape != shape or not np.all(np.isfinite(a)):
+        raise error(f"{name}: {field_name} must be finite with shape {shape}, got {a.shape}")
+    return a
+
+
 @dataclass
 class ImuData:
     """IMU samples: ``t_s`` (N,) [s]; ``gyro_radps`` (N, 3) angular rate w.r.t. inertial space in
