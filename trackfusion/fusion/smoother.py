@@ -437,11 +437,14 @@ def _gnss_nis(G: _Graph, values: gtsam.Values, with_scale: bool) -> np.ndarray:
 
 
 def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
-    """Marginal covariance of one variable, by QR (see :func:`_eliminate`) down the tree:
-    the marginal is a conditional ``R x = d`` with unit noise, so the covariance is
-    ``R^-1 R^-T``."""
-    R_inv = np.linalg.inv(tree.marginalFactor(key, gtsam.EliminateQR).R())
-    return R_inv @ R_inv.T
+    """Marginal covariance of one variable: GTSAM's (Cholesky down the tree); when that meets
+    the conditioning limit of :func:`_eliminate`, by QR: the marginal is then a conditional
+    ``R x = d`` with unit noise, so the covariance is ``R^-1 R^-T``."""
+    try:
+        return tree.marginalCovariance(key)
+    except RuntimeError:
+        R_inv = np.linalg.inv(tree.marginalFactor(key, gtsam.EliminateQR).R())
+        return R_inv @ R_inv.T
 
 
 def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
