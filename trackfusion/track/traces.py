@@ -1,0 +1,165 @@
+"""Rail traces from the smoothed pose, the trolley geometry and the gauge reading.
+
+The trolley frame ``v`` is fixed by its three wheel contacts (``simulation/trolley.py``): origin
+midway between the two reference-rail contacts, x from the rear to the front contact, z
+normal to the contact plane. With ``R_nv = R_nb R_vb^T`` and the IMU at ``lever_arm_imu_v``:
+
+- the two reference-rail contacts ``origin +/- R_nv [l/2, 0, 0]`` are points *on* the rail, at
+  chainages ``s -/+ l/2`` (``s`` the trolley's chainage). Both wheels trace the same rail; the
+  trace is their mean where both cover it, which also cancels a pitch error to first order.
+- the single wheel's contact lies in the contact plane on the transverse axis,
+  ``origin + w u`` with ``u = -y_v`` (reference rail left) or ``+y_v``. ``w`` is the gauge
+  reading ``G`` corrected for the offset of ``v``'s origin from the reference rail at ``s``
+  (the sagitta of the wheelbase chord): ``w = G + (P_ref(s) - origin) . u``. Without a gauge
+  sensor ``G`` is the nominal gauge and the other rail's alignment carries the gauge
+  irregularity (say so in the outputs).
+
+Each pass (a run in one direction between stops) is resampled on the chainage grid
+``k * step_m`` (linear interpolation of the IMU-rate samples), so repeated passes line up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from ..errors import TrackGeometryError
+
+
+@dataclass(frozen=True)
+class TrolleyGeometry:
+    """What the traces need of the trolley: ``R_vb`` (3, 3) mounting rotation b -> v,
+    ``lever_arm_imu_v`` (3,) [m], ``wheelbase_m`` [m], ``reference_rail`` "left"/"right"."""
+
+    R_vb: np.ndarray
+    lever_arm_imu_v: np.ndarray
+    wheelbase_m: float
+    reference_rail: str = "left"
+
+    @property
+    def other_rail(self) -> str:
+        return "right" if self.reference_rail == "left" else "left"
+
+
+@dataclass(frozen=True)
+class Pass:
+    """One pass: sample index range [start, stop) of the dense trajectory and its direction (+1/-1)."""
+
+    start: int
+    stop: int
+    direction: int
+
+
+@dataclass
+class RailTraces:
+    """Rail traces of one pass on the chainage grid: ``chainage_m`` (N,), ``left_n``, ``right_n``
+    (N, 3) [m] in ``n``, ``gauge_m`` (N,) [m], ``t_s`` (N,) the time the trolley's origin was at
+    each chainage, ``direction`` (+1 increasing chainage)."""
+
+    chainage_m: np.ndarray
+    left_n: np.ndarray
+    right_n: np.ndarray
+    gauge_m: np.ndarray
+    t_s: np.ndarray
+    direction: int
+
+    def rail(self, side: str) -> np.ndarray:
+        return self.left_n if side == "left" else self.right_n
+
+
+def split_passes(t_s: np.ndarray, chainage_m: np.ndarray, min_speed_mps: float = 0.05,
+                 min_length_m: float = 1.0) -> list[Pass]:
+    """Runs of motion in one direction (speed above ``min_speed_mps``) at least ``min_length_m`` long."""
+    dt = float(np.median(np.diff(t_s)))
+    v = uniform_filter1d(np.gradient(chainage_m, t_s), max(1, int(round(0.2 / dt))))  # 0.2 s mean
+    moving = np.abs(v) > min_speed_mps
+    direction = np.where(moving, np.sign(v), 0).astype(int)
+    edges = np.flatnonzero(np.diff(direction)) + 1
+    bounds = np.r_[0, edges, direction.size]
+    passes = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if direction[a] != 0 and abs(chainage_m[b - 1] - chainage_m[a]) >= min_length_m:
+            passes.append(Pass(int(a), int(b), int(direction[a])))
+    return passes
+
+
+def box_mean(x: np.ndarray, y: np.ndarray, x_query: np.ndarray, width: float) -> np.ndarray:
+    """Mean of the samples ``y`` (K,) with ``|x - x_q| <= width / 2`` at each ``x_query`` (M,)
+    (nearest sample where the box holds none): averages a noisy reading over one grid step."""
+    order = np.argsort(x, kind="stable")
+    x, y = x[order], y[order]
+    c = np.r_[0.0, np.cumsum(y)]
+    lo = np.searchsorted(x, x_query - width / 2, side="left")
+    hi = np.searchsorted(x, x_query + width / 2, side="right")
+    nearest = np.clip(np.searchsorted(x, x_query), 0, x.size - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (c[hi] - c[lo]) / (hi - lo)
+    return np.where(hi > lo, mean, y[nearest])
+
+
+def _on_grid(s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Linear interpolation of values (M, k) at chainages s (M,) onto grid (N,); NaN outside."""
+    order = np.argsort(s, kind="stable")
+    s, values = s[order], values[order]
+    s = np.maximum.accumulate(s)
+    out = np.column_stack([np.interp(grid, s, values[:, i], left=np.nan, right=np.nan)
+                           for i in range(values.shape[1])])
+    return out
+
+
+def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
+                trolley: TrolleyGeometry, gauge_m: np.ndarray, step_m: float, direction: int = 1) -> RailTraces:
+    """Rail traces of one pass (module docstring).
+
+    t_s (M,) [s], R_nb (M, 3, 3), pos_n (M, 3) [m], chainage_m (M,) [m] of ``v``'s origin,
+    gauge_m (M,) [m] gauge at each sample (reading or nominal), step_m [m] grid step.
+    """
+    R_nv = R_nb @ trolley.R_vb.T
+    origin = pos_n - R_nv @ np.asarray(trolley.lever_arm_imu_v, dtype=float)
+    half = 0.5 * trolley.wheelbase_m
+    x_n, y_n = R_nv[:, :, 0], R_nv[:, :, 1]
+    lo = np.min(chainage_m) - half
+    hi = np.max(chainage_m) + half
+    grid = step_m * np.arange(np.ceil(lo / step_m - 1e-9), np.floor(hi / step_m + 1e-9) + 1)
+    front = _on_grid(chainage_m + half, origin + half * x_n, grid)
+    rear = _on_grid(chainage_m - half, origin - half * x_n, grid)
+    ref = np.where(np.isnan(front), rear, np.where(np.isnan(rear), front, 0.5 * (front + rear)))
+    ok = np.isfinite(ref[:, 0])
+    u = -y_n if trolley.reference_rail == "left" else y_n
+    ref_at_origin = np.column_stack([np.interp(chainage_m, grid[ok], ref[ok, i]) for i in range(3)])
+    w = gauge_m + np.sum((ref_at_origin - origin) * u, axis=1)
+    other = _on_grid(chainage_m, origin + w[:, None] * u, grid)
+    extra = _on_grid(chainage_m, np.column_stack([gauge_m, t_s]), grid)
+    keep = ok & np.isfinite(other[:, 0])
+    if np.count_nonzero(keep) < 4:
+        raise TrackGeometryError("a pass covers fewer than 4 chainage steps; lower outputs.geometry_step_m")
+    left, right = (ref, other) if trolley.reference_rail == "left" else (other, ref)
+    return RailTraces(grid[keep], left[keep], right[keep], extra[keep, 0], extra[keep, 1], direction)
+
+
+def rail_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
+                trolley: TrolleyGeometry, step_m: float, gauge_t_s: np.ndarray | None = None,
+                gauge_reading_m: np.ndarray | None = None, nominal_gauge_m: float = 1.435,
+                min_speed_mps: float = 0.05, min_length_m: float = 1.0) -> list[RailTraces]:
+    """Rail traces of every pass of a dense trajectory (module docstring); arrays as in
+    :func:`pass_traces` over the whole run; the gauge reading (K,) at ``gauge_t_s`` (K,) is
+    averaged over one grid step of chainage (:func:`box_mean`), or ``nominal_gauge_m`` without it."""
+    passes = split_passes(t_s, chainage_m, min_speed_mps, min_length_m)
+    if not passes:
+        raise TrackGeometryError(f"the trajectory has no pass of at least {min_length_m:g} m in motion")
+    if gauge_t_s is not None and gauge_t_s.size >= 2:
+        gauge = np.full(t_s.shape, np.nan)
+        s_reading = np.interp(gauge_t_s, t_s, chainage_m)
+        for p in passes:
+            inside = (gauge_t_s >= t_s[p.start]) & (gauge_t_s <= t_s[p.stop - 1])
+            if np.count_nonzero(inside) < 2:
+                raise TrackGeometryError(f"no gauge readings between t = {t_s[p.start]:.1f} and {t_s[p.stop - 1]:.1f} s")
+            gauge[p.start:p.stop] = box_mean(s_reading[inside], gauge_reading_m[inside],
+                                             chainage_m[p.start:p.stop], step_m)
+    else:
+        gauge = np.full(t_s.shape, float(nominal_gauge_m))
+    return [pass_traces(t_s[p.start:p.stop], R_nb[p.start:p.stop], pos_n[p.start:p.stop],
+                        chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction)
+            for p in passes]
