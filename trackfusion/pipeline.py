@@ -37,6 +37,7 @@ from .fusion.trajectory import DenseTrajectory, densify
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.types import InclinometerData, OdometerData, SensorLog
+from .track.geometry import GeometryConfig
 
 Vec3 = tuple[float, float, float]
 
@@ -47,11 +48,13 @@ class _Strict(BaseModel):
 
 class InputsConfig(_Strict):
     """``log``: the raw MCAP log; ``reference``: optional truth/reference trajectory CSV to
-    evaluate against; ``allow_truncated``: run on the readable part of a damaged log."""
+    evaluate against; ``allow_truncated``: run on the readable part of a damaged log;
+    ``design``: optional design alignment (docs/geometry.md)."""
 
     log: str
     reference: str | None = None
     allow_truncated: bool = False
+    design: str | None = None  # design alignment YAML (an ``alignment:`` section), for geometry
 
 
 class OriginConfig(_Strict):
@@ -133,6 +136,7 @@ class PipelineConfig(_Strict):
     static: StaticSettings = StaticSettings()
     smoother: SmootherSettings = SmootherSettings()
     outputs: OutputsConfig = OutputsConfig()
+    geometry: GeometryConfig = GeometryConfig()
 
 
 @dataclass
@@ -175,13 +179,15 @@ def load_pipeline(path: str | os.PathLike) -> Pipeline:
 
 def _check_inputs(pipeline: Pipeline) -> None:
     cfg, src = pipeline.config, pipeline.source
-    for field_name in ("log", "reference"):
+    for field_name in ("log", "reference", "design"):
         value = getattr(cfg.inputs, field_name)
         if value is not None and not pipeline.path(value).is_file():
             raise ConfigError(f"{src}: inputs.{field_name}: file not found: {pipeline.path(value)}")
     if cfg.factors.total_stations.enabled:
         raise ConfigError(f"{src}: factors.total_stations: total-station fusion is not available yet "
                           "(set it to false)")
+    from .track.geometry import check_geometry_inputs
+    check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
     if cfg.factors.gnss.enabled and cfg.sensors.gnss is None:
         raise ConfigError(f"{src}: sensors.gnss: missing (needed by factors.gnss; or set factors.gnss: false)")
 
@@ -210,7 +216,7 @@ TRAJECTORY_UNITS = {
 def _read(pipeline: Pipeline) -> SensorLog:
     from .sensors.mcap_log import read_log
     cfg = pipeline.config
-    topics = ["/imu", "/odometer", "/gnss", "/inclinometer"]
+    topics = ["/imu", "/odometer", "/gnss", "/inclinometer", "/gauge"]
     log = read_log(pipeline.path(cfg.inputs.log), topics=topics, allow_truncated=cfg.inputs.allow_truncated)
     if log.imu is None:
         raise FusionError(f"{pipeline.path(cfg.inputs.log)}: the log has no /imu topic")
@@ -357,6 +363,12 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),
                                "trajectory_rate_hz": float(imu_rate / every),
                                **_smoother_metrics(res, info)}
+    # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
+    from .track.geometry import geometry_for_run
+    geometry = geometry_for_run(pipeline, problem, res, dense, chainage, log.gauge)
+    if geometry is not None:
+        metrics["geometry"] = geometry.metrics
+    # --- end track geometry ---
     if cfg.inputs.reference is not None:
         from .evaluation.reference import compare_with_reference
         metrics.update(compare_with_reference(table, pipeline.path(cfg.inputs.reference), problem.origin.to_dict()))
@@ -364,13 +376,13 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     timings["total_s"] = time.perf_counter() - wall
     metrics["timings_s"] = timings
     metrics["run_time_s"] = timings["total_s"]
-    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every)
+    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every, geometry)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     return RunResult(out, files, metrics, table, res)
 
 
 def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
-                  cfg: PipelineConfig, dense: DenseTrajectory, every: int) -> list[str]:
+                  cfg: PipelineConfig, dense: DenseTrajectory, every: int, geometry=None) -> list[str]:
     """Write every output into a staging folder beside ``out``, then move each file in."""
     from .sensors.fileio import write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
@@ -381,6 +393,9 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
                         extra={"description": "smoothed trajectory of the IMU origin",
                                "config": cfg.model_dump(mode="json")})
         write_json_atomic(stage / "metrics.json", metrics)
+        if geometry is not None:  # issue 6: geometry.csv + geometry.json
+            write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
+                            fmt="%.12g", extra=geometry.sidecar())
         if cfg.outputs.fused_mcap:
             write_fused_mcap(stage / "fused.mcap", table, origin)
         files = sorted(p.name for p in stage.iterdir())

@@ -1,0 +1,406 @@
+"""Track geometry of a survey: the ``geometry:`` pipeline section and :func:`compute_geometry`.
+
+From the dense smoothed trajectory, its chainage and the gauge readings: rail traces per pass
+(:mod:`.traces`), then per pass and on the chainage grid the gauge, cross-level, twist,
+irregularities (against the design when given, else EN 13848 bands), versines, the
+deformation index; tolerance checks from a table in ``trackfusion/data/tolerances``; repeated
+passes averaged into one table and their repeatability (seed 000 tables 2-3). Column names
+follow the geometry.csv contract (docs/geometry.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..errors import ConfigError, EvaluationError, config_error_from_validation
+from ..evaluation.repeatability import repeatability
+from . import irregularities as irr
+from .chainage import project_onto_design, regrid
+from .design import DesignAlignment
+from .shortwave import deformation_index, detect_defects, merge_defects
+from .traces import RailTraces, TrolleyGeometry, rail_traces
+from .versines import chord_indicator, chord_offsets
+
+RAILS = ("left", "right")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class AsymmetricChord(_Strict):
+    """A chord from ``before_m`` behind the point to ``after_m`` ahead of it [m]."""
+
+    before_m: float = Field(ge=0)
+    after_m: float = Field(ge=0)
+
+
+class DeformationIndexConfig(_Strict):
+    """Seed 000's DI: standing below ``v_min_mps``; defect where |DI| > ``threshold_deg_per_m``;
+    detections closer than ``merge_m`` are one defect."""
+
+    enabled: bool = True
+    v_min_mps: float = Field(0.1, gt=0)
+    threshold_deg_per_m: float = Field(25.0, gt=0)
+    merge_m: float = Field(0.5, gt=0)
+
+
+class GeometryConfig(_Strict):
+    """The ``geometry:`` pipeline section (docs/geometry.md)."""
+
+    enabled: bool = True
+    chords_m: list[float] = Field(default_factory=lambda: [10.0])
+    asymmetric_chords: list[AsymmetricChord] = []
+    twist_bases_m: list[float] = Field(default_factory=lambda: [3.0])
+    irregularity_band: Literal["D1", "D2", "D3"] = "D1"
+    extra_bands: list[Literal["D1", "D2", "D3"]] = []
+    tolerances: str | None = None
+    nominal_gauge_m: float = Field(1.435, gt=0)
+    min_speed_mps: float = Field(0.05, gt=0)
+    repeatability_chords_m: list[float] = Field(default_factory=lambda: [1.0, 10.0])
+    repeatability_limits_mm: list[float] = Field(default_factory=lambda: [0.1, 1.0])
+    deformation_index: DeformationIndexConfig = DeformationIndexConfig()
+
+
+@dataclass(frozen=True)
+class ToleranceCheck:
+    """One check of a tolerance table (see the YAML files in ``trackfusion/data/tolerances``)."""
+
+    name: str
+    kind: str
+    limit_mm: float
+    quantity: str | None = None
+    length_m: float | None = None
+    chord_m: float | None = None
+    spacing_m: float | None = None
+
+
+def load_tolerances(name_or_path: str, base_dir: Path | None = None) -> tuple[str, list[ToleranceCheck]]:
+    """A tolerance table by package name (``seed002-china``) or path (relative to ``base_dir``)."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml"):
+        p = p if p.is_absolute() or base_dir is None else base_dir / p
+        text, source = (p.read_text(encoding="utf-8") if p.is_file() else None), str(p)
+    else:
+        res = resources.files("trackfusion") / "data" / "tolerances" / f"{name_or_path}.yaml"
+        text, source = (res.read_text(encoding="utf-8") if res.is_file() else None), f"tolerance table {name_or_path!r}"
+    if text is None:
+        known = sorted(q.name[:-5] for q in (resources.files("trackfusion") / "data" / "tolerances").iterdir()
+                       if q.name.endswith(".yaml"))
+        raise ConfigError(f"geometry.tolerances: {source} not found (package tables: {', '.join(known)})")
+    try:
+        data = yaml.safe_load(text)
+        checks = [ToleranceCheck(**c) for c in data["checks"]]
+    except (yaml.YAMLError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{source}: invalid tolerance table ({exc})") from None
+    for c in checks:
+        if c.kind not in ("limit", "chord_indicator"):
+            raise ConfigError(f"{source}: check {c.name}: unknown kind {c.kind!r}")
+        if c.kind == "limit" and c.quantity not in ("vertical_versine", "lateral_versine", "twist", "cross_level",
+                                                     "gauge_variation"):
+            raise ConfigError(f"{source}: check {c.name}: unknown quantity {c.quantity!r}")
+    return str(data.get("name", name_or_path)), checks
+
+
+def parse_geometry_config(data: Any, source: str) -> GeometryConfig:
+    try:
+        return GeometryConfig.model_validate(data or {})
+    except ValidationError as exc:
+        raise config_error_from_validation(exc, f"{source}: geometry") from None
+
+
+def fmt_length(x: float) -> str:
+    """``%g`` of a length, as in the column names (3, 10, 1.5, 18.8976)."""
+    return f"{x:g}"
+
+
+@dataclass
+class GeometryResult:
+    """``table`` column -> (N,) on the chainage grid (mean over passes), ``units``,
+    ``metrics`` (the metrics.json ``geometry`` section), ``passes`` the per-pass tables,
+    ``traces`` the per-pass rail traces, ``di`` per pass (chainage (M,), DI (M,) [deg/m])."""
+
+    table: dict[str, np.ndarray]
+    units: dict[str, str]
+    metrics: dict[str, Any]
+    passes: list[dict[str, np.ndarray]] = field(default_factory=list)
+    traces: list[RailTraces] = field(default_factory=list)
+    di: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+
+
+def pitch_rate_v(R_nb: np.ndarray, gyro_b: np.ndarray, gyro_bias_b: np.ndarray, omega_ie_n: np.ndarray,
+                 R_vb: np.ndarray) -> np.ndarray:
+    """Pitch rate [rad/s] (N,) of the trolley (nose up positive: minus the rate about ``y_v``)
+    from the gyro (N, 3) [rad/s], its bias (N, 3) and the Earth rate in ``n`` (3,)."""
+    w_nb_b = gyro_b - gyro_bias_b - np.einsum("nji,j->ni", R_nb, omega_ie_n)
+    return -(w_nb_b @ R_vb.T)[:, 1]
+
+
+def _pass_table(tr: RailTraces, cfg: GeometryConfig, chords: list[tuple[float, float]], bases: list[float],
+                step_m: float, design_track, design_s: np.ndarray | None) -> dict[str, np.ndarray]:
+    s = tr.chainage_m
+    cols: dict[str, np.ndarray] = {"chainage_m": s}
+    for side in RAILS:
+        p = tr.rail(side)
+        cols.update({f"{side}_e_m": p[:, 0], f"{side}_n_m": p[:, 1], f"{side}_u_m": p[:, 2]})
+    cols["gauge_m"] = tr.gauge_m
+    cl = irr.cross_level(tr.left_n, tr.right_n)
+    cols["cross_level_mm"] = 1e3 * cl
+    for b in bases:
+        cols[f"twist_{fmt_length(b)}m_mm"] = 1e3 * irr.twist(s, cl, b)
+    bands = [cfg.irregularity_band, *[b for b in cfg.extra_bands if b != cfg.irregularity_band]]
+    for side in RAILS:
+        p = tr.rail(side)
+        if design_track is not None:
+            v, l = irr.against_design(p, design_s, design_track, side)
+        else:
+            v, l = irr.banded(p, step_m, irr.EN13848_BANDS[bands[0]])
+        cols[f"{side}_vertical_mm"], cols[f"{side}_lateral_mm"] = 1e3 * v, 1e3 * l
+    for band in bands[1:] if design_track is None else bands:
+        for side in RAILS:
+            v, l = irr.banded(tr.rail(side), step_m, irr.EN13848_BANDS[band])
+            cols[f"{side}_vertical_{band}_mm"], cols[f"{side}_lateral_{band}_mm"] = 1e3 * v, 1e3 * l
+    cols["gauge_variation_mm"] = 1e3 * (tr.gauge_m - cfg.nominal_gauge_m)
+    for a, b in chords:
+        name = fmt_length(a + b) if a == b else f"{fmt_length(a)}+{fmt_length(b)}"
+        for side in RAILS:
+            v, l = chord_offsets(s, tr.rail(side), a, b)
+            cols[f"{side}_vertical_versine_{name}m_mm"] = 1e3 * v
+            cols[f"{side}_lateral_versine_{name}m_mm"] = 1e3 * l
+    cols["t_s"] = tr.t_s
+    return cols
+
+
+def _units(names) -> dict[str, str]:
+    def unit(n: str) -> str:
+        return "mm" if n.endswith("_mm") else "s" if n.endswith("_s") else "deg/m" if n.endswith("_deg_per_m") else "m"
+    return {n: unit(n) for n in names}
+
+
+def _mean_over_passes(tables: list[dict[str, np.ndarray]], step_m: float) -> dict[str, np.ndarray]:
+    """Mean of the pass tables on the union of their chainage grids (NaN where none covers)."""
+    idx = [np.round(t["chainage_m"] / step_m).astype(int) for t in tables]
+    k0 = min(i.min() for i in idx)
+    k1 = max(i.max() for i in idx)
+    out: dict[str, np.ndarray] = {}
+    for name in tables[0]:
+        if name == "chainage_m":
+            continue
+        acc = np.zeros(k1 - k0 + 1)
+        cnt = np.zeros(k1 - k0 + 1)
+        for t, i in zip(tables, idx):
+            v = t[name]
+            ok = np.isfinite(v)
+            np.add.at(acc, i[ok] - k0, v[ok])
+            np.add.at(cnt, i[ok] - k0, 1)
+        with np.errstate(invalid="ignore"):
+            out[name] = acc / cnt
+    out = {"chainage_m": step_m * np.arange(k0, k1 + 1), **out}
+    covered = np.isfinite(out["left_e_m"])
+    return {k: v[covered] for k, v in out.items()}
+
+
+def _limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck) -> list[dict]:
+    L = fmt_length(check.length_m) if check.length_m is not None else ""
+    names = {"vertical_versine": [f"{r}_vertical_versine_{L}m_mm" for r in RAILS],
+             "lateral_versine": [f"{r}_lateral_versine_{L}m_mm" for r in RAILS],
+             "twist": [f"twist_{L}m_mm"], "cross_level": ["cross_level_mm"],
+             "gauge_variation": ["gauge_variation_mm"]}[check.quantity]
+    out = []
+    for col in names:
+        out += _stretches(table["chainage_m"], table[col], check.limit_mm, f"{check.name}:{col}")
+    return out
+
+
+def _stretches(s: np.ndarray, value_mm: np.ndarray, limit_mm: float, check: str, merge_m: float = 1.0) -> list[dict]:
+    """One exceedance per stretch of ``|value| > limit`` (its peak)."""
+    out = []
+    for d in detect_defects(s, value_mm, limit_mm, merge_m):
+        out.append({"check": check, "chainage_m": d.chainage_m, "value_mm": d.peak_di_deg_per_m,
+                    "limit_mm": float(limit_mm)})
+    return out
+
+
+def _indicator_exceedances(tr: RailTraces, design_track, design_s, check: ToleranceCheck) -> list[dict]:
+    out = []
+    for side in RAILS:
+        ref = design_track.rail_points_n(design_s, side)
+        for comp in ("vertical", "lateral"):
+            ind = chord_indicator(tr.chainage_m, tr.rail(side), ref, check.chord_m, check.spacing_m, comp)
+            dv = 1e3 * ind.delta_v_m.ravel()
+            sc = ind.pair_chainage_m.ravel()
+            out += _stretches(sc, dv, check.limit_mm, f"{check.name}:{side}_{comp}", check.spacing_m)
+    return out
+
+
+def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
+                     trolley: TrolleyGeometry, cfg: GeometryConfig, step_m: float,
+                     gauge_t_s: np.ndarray | None = None, gauge_m: np.ndarray | None = None,
+                     pitch_rate_radps: np.ndarray | None = None, design: DesignAlignment | None = None,
+                     tolerances: tuple[str, list[ToleranceCheck]] | None = None) -> GeometryResult:
+    """Track geometry of a survey (module docstring).
+
+    t_s (N,) [s], R_nb (N, 3, 3), pos_n (N, 3) [m]: the dense trajectory; chainage_m (N,) [m] of
+    the trolley origin; gauge readings (K,) at gauge_t_s (K,) or None (nominal gauge);
+    pitch_rate_radps (N,) for the DI (or None: no DI); design: project onto it (positions must
+    be in the design's ``n``) and reference the irregularities and seed-002 checks to it.
+    """
+    checks = tolerances[1] if tolerances else []
+    chords = sorted({(0.5 * c, 0.5 * c) for c in cfg.chords_m}
+                    | {(0.5 * r, 0.5 * r) for r in cfg.repeatability_chords_m}
+                    | {(c.before_m, c.after_m) for c in cfg.asymmetric_chords}
+                    | {(0.5 * c.length_m, 0.5 * c.length_m) for c in checks
+                       if c.kind == "limit" and c.quantity.endswith("versine")})
+    bases = sorted(set(cfg.twist_bases_m) | {c.length_m for c in checks if c.kind == "limit" and c.quantity == "twist"})
+    traces = rail_traces(t_s, R_nb, pos_n, chainage_m, trolley, step_m, gauge_t_s, gauge_m, cfg.nominal_gauge_m,
+                         cfg.min_speed_mps, min_length_m=max(1.0, 4 * step_m))
+    design_track = irr.design_track(design, cfg.nominal_gauge_m) if design is not None else None
+    tables, used, design_s_all = [], [], []
+    for tr in traces:
+        ds = None
+        if design is not None:
+            ds = project_onto_design(0.5 * (tr.left_n + tr.right_n), design)
+            tr = regrid(tr, ds, step_m)
+            ds = tr.chainage_m
+        tables.append(_pass_table(tr, cfg, chords, bases, step_m, design_track, ds))
+        used.append(tr)
+        design_s_all.append(ds)
+    table = _mean_over_passes(tables, step_m)
+    exceedances: list[dict] = []
+    skipped: list[dict] = []
+    for c in checks:
+        if c.kind == "limit":
+            exceedances += _limit_exceedances(table, c)
+        elif design is None:
+            skipped.append({"check": c.name, "reason": "needs a design alignment (inputs.design)"})
+        else:
+            exceedances += [dict(e, passes=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
+                            for e in _indicator_exceedances(tr, design_track, ds, c)]
+    di_series, di_defects = [], []
+    if pitch_rate_radps is not None and cfg.deformation_index.enabled:
+        dcfg = cfg.deformation_index
+        speed = np.gradient(chainage_m, t_s)
+        di = deformation_index(pitch_rate_radps, speed, dcfg.v_min_mps)
+        for tr in used:
+            m = (t_s >= tr.t_s.min()) & (t_s <= tr.t_s.max())
+            s_di = np.interp(t_s[m], tr.t_s[np.argsort(tr.t_s)], tr.chainage_m[np.argsort(tr.t_s)])
+            di_series.append((s_di, di[m]))
+            di_defects.append(detect_defects(s_di, di[m], dcfg.threshold_deg_per_m, dcfg.merge_m))
+        table["di_deg_per_m"] = _mean_over_passes(
+            [{"chainage_m": t["chainage_m"], "left_e_m": t["left_e_m"],
+              "di_deg_per_m": np.interp(t["chainage_m"], *_sorted(*ser))} for t, ser in zip(tables, di_series)],
+            step_m)["di_deg_per_m"]
+    metrics: dict[str, Any] = {
+        "step_m": float(step_m),
+        "length_m": float(table["chainage_m"][-1] - table["chainage_m"][0]),
+        "passes": len(used),
+        "chainage": "design (projection)" if design is not None else "odometer",
+        "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
+        "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
+                 f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
+        "tolerance_table": tolerances[0] if tolerances else None,
+        "exceedances": exceedances,
+        "skipped_checks": skipped,
+    }
+    if di_series:
+        metrics["deformation_index"] = {
+            "threshold_deg_per_m": cfg.deformation_index.threshold_deg_per_m,
+            "v_min_mps": cfg.deformation_index.v_min_mps,
+            "defects": merge_defects(di_defects, cfg.deformation_index.merge_m),
+            "defects_per_pass": [[d.to_json() for d in ds] for ds in di_defects]}
+    if len(tables) >= 2:
+        metrics["repeatability"] = _repeatability(tables, cfg, step_m)
+    table.pop("t_s", None)
+    units = _units(table)
+    return GeometryResult(table, units, metrics, tables, used, di_series)
+
+
+def _sorted(s: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    o = np.argsort(s, kind="stable")
+    return s[o], v[o]
+
+
+def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, step_m: float) -> dict:
+    """Seed 000 tables 2-3 per repeatability chord, rail and direction (vertical, lateral)."""
+    out: dict[str, Any] = {}
+    idx = [np.round(t["chainage_m"] / step_m).astype(int) for t in tables]
+    k0, k1 = max(i.min() for i in idx), min(i.max() for i in idx)
+    if k1 <= k0:
+        return {"error": "the passes share no chainage"}
+    for chord, limit in zip(cfg.repeatability_chords_m, cfg.repeatability_limits_mm):
+        for side in RAILS:
+            for comp in ("vertical", "lateral"):
+                col = f"{side}_{comp}_versine_{fmt_length(chord)}m_mm"
+                rows = np.vstack([t[col][(i >= k0) & (i <= k1)] for t, i in zip(tables, idx)])
+                try:
+                    r = repeatability(rows / 1e3, limit, step_m * np.arange(k0, k1 + 1))
+                except EvaluationError as exc:  # reported, not raised: passes may share no point
+                    out[col] = {"error": str(exc)}
+                    continue
+                out[col] = r.to_json()
+    return out
+
+
+def _sidecar(self: GeometryResult) -> dict[str, Any]:
+    return {"description": "track geometry per chainage step: rail reference points (top of rail / running "
+                           "edge) in n and the quantities derived from them (docs/geometry.md)",
+            "chainage": self.metrics["chainage"], "irregularity_reference": self.metrics["irregularity_reference"],
+            "gauge": self.metrics["gauge"], "passes": self.metrics["passes"],
+            "sign_conventions": {"cross_level_mm": "left rail height minus right rail height",
+                                 "vertical": "positive up", "lateral": "positive to the left of increasing chainage",
+                                 "twist": "cross_level(s + B/2) - cross_level(s - B/2)"}}
+
+
+GeometryResult.sidecar = _sidecar
+
+
+def load_design(path: Path) -> DesignAlignment:
+    """A design alignment from a YAML file holding an ``alignment:`` section (a scenario YAML
+    works) or the alignment mapping itself."""
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: unreadable design alignment ({str(exc).splitlines()[0]})") from None
+    if isinstance(data, dict) and "alignment" in data:
+        data = data["alignment"]
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: a design alignment must be a mapping (or hold an 'alignment:' section)")
+    return DesignAlignment.from_dict(data, f"{path}: alignment")
+
+
+def check_geometry_inputs(pipeline) -> None:
+    """Fail early (before fusion) on a bad design file or tolerance table."""
+    cfg = pipeline.config
+    if cfg.inputs.design is not None:
+        load_design(pipeline.path(cfg.inputs.design))
+    if cfg.geometry.tolerances is not None:
+        load_tolerances(cfg.geometry.tolerances, pipeline.base_dir)
+
+
+def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gauge) -> GeometryResult | None:
+    """:func:`compute_geometry` with the pieces of a pipeline run (``pipeline.run``); None when
+    ``geometry.enabled`` is false."""
+    from .. import geodesy
+    cfg = pipeline.config
+    g = cfg.geometry
+    if not g.enabled:
+        return None
+    tf = problem.trolley
+    trolley = TrolleyGeometry(tf.R_vb, tf.lever_arm_imu_v, tf.wheelbase_m, cfg.trolley.reference_rail)
+    i0 = int(res.key_idx[0])
+    n = dense.t_s.size
+    gyro = problem.imu.gyro_radps[i0:i0 + n]
+    bias = np.column_stack([np.interp(dense.t_s, res.t_s, res.gyro_bias_radps[:, k]) for k in range(3)])
+    pitch_rate = pitch_rate_v(dense.R_nb, gyro, bias, geodesy.earth_rate_n(problem.origin), tf.R_vb)
+    design = load_design(pipeline.path(cfg.inputs.design)) if cfg.inputs.design else None
+    tol = load_tolerances(g.tolerances, pipeline.base_dir) if g.tolerances else None
+    return compute_geometry(dense.t_s, dense.R_nb, dense.pos_n, chainage_m, trolley, g, cfg.outputs.geometry_step_m,
+                            None if gauge is None else gauge.t_s, None if gauge is None else gauge.gauge_m,
+                            pitch_rate, design, tol)
