@@ -12,7 +12,9 @@ normal to the contact plane. With ``R_nv = R_nb R_vb^T`` and the IMU at ``lever_
   reading ``G`` corrected for the offset of ``v``'s origin from the reference rail at ``s``
   (the sagitta of the wheelbase chord): ``w = G + (P_ref(s) - origin) . u``. Without a gauge
   sensor ``G`` is the nominal gauge and the other rail's alignment carries the gauge
-  irregularity (say so in the outputs).
+  irregularity (say so in the outputs). The point is filed under the chainage where the
+  track's cross-section through it meets the reference rail (its offset along a 10 m chord
+  of the reference rail), as the truth files both rails under one design chainage.
 
 Each pass (a run in one direction between stops) is resampled on the chainage grid
 ``k * step_m`` (linear interpolation of the IMU-rate samples), so repeated passes line up.
@@ -130,7 +132,16 @@ def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m
     u = -y_n if trolley.reference_rail == "left" else y_n
     ref_at_origin = np.column_stack([np.interp(chainage_m, grid[ok], ref[ok, i]) for i in range(3)])
     w = gauge_m + np.sum((ref_at_origin - origin) * u, axis=1)
-    other = _on_grid(chainage_m, origin + w[:, None] * u, grid)
+    other_n = origin + w[:, None] * u
+    # the other rail's point belongs to the chainage where the track's cross-section through it
+    # meets the reference rail: shift by its offset along the track direction (a 10 m chord of
+    # the reference rail, which averages out the irregularities' slopes)
+    ahead = np.column_stack([np.interp(chainage_m + 5.0, grid[ok], ref[ok, i]) for i in range(3)])
+    behind = np.column_stack([np.interp(chainage_m - 5.0, grid[ok], ref[ok, i]) for i in range(3)])
+    along = ahead - behind
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    s_other = chainage_m + np.sum((other_n - ref_at_origin) * along, axis=1)
+    other = _on_grid(s_other, other_n, grid)
     extra = _on_grid(chainage_m, np.column_stack([gauge_m, t_s]), grid)
     keep = ok & np.isfinite(other[:, 0])
     if np.count_nonzero(keep) < 4:
