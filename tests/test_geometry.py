@@ -147,19 +147,22 @@ def _known_pose(track, wheelbase, lever, ypr, s):
     return geo, pos_n, R_nb
 
 
-@pytest.mark.parametrize("wheelbase", [1.2, 0.08])
-def test_rail_traces_from_known_pose(track, wheelbase):
+@pytest.mark.parametrize("wheelbase,crossover", [(1.2, None), (0.08, None), (1.2, 100.0), (0.08, 100.0)])
+def test_rail_traces_from_known_pose(track, wheelbase, crossover):
     s = np.arange(5.0, 55.0, 0.002)
     ypr = (0.01, -0.02, 0.015)
     geo, pos_n, R_nb = _known_pose(track, wheelbase, (0.1, -0.7, 0.3), ypr, s)
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), wheelbase, "left")
     t = s / 1.0  # 1 m/s
-    traces = rail_traces(t, R_nb, pos_n, s, trolley, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s))
+    traces = rail_traces(t, R_nb, pos_n, s, trolley, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s),
+                         crossover_m=crossover, gauge_window_m=0.01)
     assert len(traces) == 1 and traces[0].direction == 1
     tr = traces[0]
     inner = (tr.chainage_m > 6) & (tr.chainage_m < 54)
     R_nt = track.design.evaluate(tr.chainage_m[inner]).R_nt
-    for side, tol_along in (("left", 2e-6), ("right", 2e-3)):
+    # with the attitude, the wheels' spacing l is rail length while the test's chainage is the
+    # design's horizontal length (grade 5 permille): along-track offsets of a fraction of a millimetre
+    for side, tol_along in (("left", 2e-6 if crossover is None else 5e-4), ("right", 2e-3)):
         truth = track.rail_points_n(tr.chainage_m[inner], side)
         err_t = np.abs(np.einsum("nji,nj->ni", R_nt, tr.rail(side)[inner] - truth)).max(axis=0)
         # the reference rail is traced exactly; the other rail's point is filed under the chainage
@@ -169,7 +172,8 @@ def test_rail_traces_from_known_pose(track, wheelbase):
         assert err_t[0] < tol_along and err_t[1] < 2e-5 and err_t[2] < 3e-6, (side, err_t)
     # a wrong lever arm shows: the test can fail
     bad = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v) + [0, 0, 1e-3], wheelbase, "left")
-    tr_bad = rail_traces(t, R_nb, pos_n, s, bad, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s))[0]
+    tr_bad = rail_traces(t, R_nb, pos_n, s, bad, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s),
+                         crossover_m=crossover)[0]
     assert np.abs(tr_bad.left_n[inner, 2] - track.rail_points_n(tr.chainage_m[inner], "left")[:, 2]).max() > 5e-4
 
 
@@ -281,3 +285,19 @@ def test_compute_geometry_columns_and_exceedances(track):
     assert np.abs(est[ok] - truth_v[ok]).max() < 1e-3
     flagged = {round(e["chainage_m"], 2) for e in g.metrics["exceedances"] if "left_vertical" in e["check"]}
     assert bool(flagged) == bool(np.nanmax(np.abs(est)) > 2.0)
+
+
+def test_attitude_refinement_removes_position_noise(track):
+    """White position noise on the pose (as the fused trajectory's) is removed at short wavelengths
+    when the trace is combined with the attitude; without it the 1 m versines carry the noise."""
+    s = np.arange(5.0, 55.0, 0.004)
+    geo, pos_n, R_nb = _known_pose(track, 0.08, (0.0, 0.0, 0.1), (0, 0, 0), s)
+    trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 0.08, "left")
+    noisy = pos_n + 2e-5 * np.random.default_rng(1).standard_normal(pos_n.shape)
+    errs = {}
+    for crossover in (None, 100.0):
+        tr = rail_traces(s, R_nb, noisy, s, trolley, 0.01, crossover_m=crossover)[0]
+        v = symmetric_versine(tr.chainage_m, tr.left_n, 1.0)[0]
+        truth = symmetric_versine(tr.chainage_m, track.rail_points_n(tr.chainage_m, "left"), 1.0)[0]
+        errs[crossover] = np.sqrt(np.nanmean((v - truth) ** 2))
+    assert errs[None] > 5e-6 and errs[100.0] < 0.2 * errs[None]

@@ -101,6 +101,41 @@ def box_mean(x: np.ndarray, y: np.ndarray, x_query: np.ndarray, width: float) ->
     return np.where(hi > lo, mean, y[nearest])
 
 
+def refine_with_attitude(grid: np.ndarray, ref_n: np.ndarray, s_origin: np.ndarray, x_n: np.ndarray,
+                         wheelbase_m: float, crossover_m: float) -> np.ndarray:
+    """The reference-rail trace (N, 3) on the uniform ``grid`` (N,) combined with the trolley's
+    attitude: least squares of the two-wheel differences ``P(s + l/2) - P(s - l/2) = l x_n(s)``
+    (x_n (M, 3) the trolley's x axis at the origin chainages s_origin (M,), interpolated to the
+    grid) and the positions ``P = ref_n`` weighted ``w = 2 sin(pi l / crossover_m)``: at
+    wavelengths below ``crossover_m`` the gyro-derived attitude shapes the trace, above it the
+    fused positions (their weights are equal there). The differences alone leave the
+    wavelengths ``l / k`` to the positions (the two-point instrument's zeros).
+    """
+    from scipy.sparse import coo_matrix, identity
+    from scipy.sparse.linalg import spsolve
+
+    step = grid[1] - grid[0]
+    h = 0.5 * wheelbase_m
+    inside = (grid - h >= grid[0]) & (grid + h <= grid[-1]) & (grid >= s_origin.min()) & (grid <= s_origin.max())
+    k = np.flatnonzero(inside)
+    x_grid = _on_grid(s_origin, x_n, grid[k])
+    rows, cols, vals = [], [], []
+    for sign, offset in ((1.0, h), (-1.0, -h)):
+        f = (grid[k] + offset - grid[0]) / step
+        i = np.clip(np.floor(f).astype(int), 0, grid.size - 2)
+        frac = f - i
+        r = np.arange(k.size)
+        rows += [r, r]
+        cols += [i, i + 1]
+        vals += [sign * (1 - frac), sign * frac]
+    D = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                   shape=(k.size, grid.size)).tocsc()
+    w2 = (2 * np.sin(np.pi * wheelbase_m / crossover_m)) ** 2
+    A = (D.T @ D + w2 * identity(grid.size, format="csc")).tocsc()
+    b = D.T @ (wheelbase_m * x_grid) + w2 * ref_n
+    return np.asarray(spsolve(A, b)).reshape(ref_n.shape)
+
+
 def _on_grid(s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Linear interpolation of values (M, k) at chainages s (M,) onto grid (N,); NaN outside."""
     order = np.argsort(s, kind="stable")
@@ -112,11 +147,13 @@ def _on_grid(s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
 
 
 def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
-                trolley: TrolleyGeometry, gauge_m: np.ndarray, step_m: float, direction: int = 1) -> RailTraces:
+                trolley: TrolleyGeometry, gauge_m: np.ndarray, step_m: float, direction: int = 1,
+                crossover_m: float | None = None) -> RailTraces:
     """Rail traces of one pass (module docstring).
 
     t_s (M,) [s], R_nb (M, 3, 3), pos_n (M, 3) [m], chainage_m (M,) [m] of ``v``'s origin,
-    gauge_m (M,) [m] gauge at each sample (reading or nominal), step_m [m] grid step.
+    gauge_m (M,) [m] gauge at each sample (reading or nominal), step_m [m] grid step;
+    crossover_m: combine with the attitude (:func:`refine_with_attitude`), or None.
     """
     R_nv = R_nb @ trolley.R_vb.T
     origin = pos_n - R_nv @ np.asarray(trolley.lever_arm_imu_v, dtype=float)
@@ -124,11 +161,19 @@ def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m
     x_n, y_n = R_nv[:, :, 0], R_nv[:, :, 1]
     lo = np.min(chainage_m) - half
     hi = np.max(chainage_m) + half
-    grid = step_m * np.arange(np.ceil(lo / step_m - 1e-9), np.floor(hi / step_m + 1e-9) + 1)
+    # work on a grid fine enough for linear interpolation at the wheels (<= 5 cm, <= l/8),
+    # whose every m-th point is an output point
+    m = int(np.ceil(step_m / min(step_m, 0.05, trolley.wheelbase_m / 8) - 1e-9))
+    fine = step_m / m
+    grid = fine * np.arange(np.ceil(lo / step_m - 1e-9) * m, np.floor(hi / step_m + 1e-9) * m + 1)
     front = _on_grid(chainage_m + half, origin + half * x_n, grid)
     rear = _on_grid(chainage_m - half, origin - half * x_n, grid)
     ref = np.where(np.isnan(front), rear, np.where(np.isnan(rear), front, 0.5 * (front + rear)))
     ok = np.isfinite(ref[:, 0])
+    if crossover_m is not None:
+        ref[ok] = refine_with_attitude(grid[ok], ref[ok], chainage_m, x_n, trolley.wheelbase_m, crossover_m)
+        origin = 0.5 * (np.column_stack([np.interp(chainage_m + half, grid[ok], ref[ok, i]) for i in range(3)])
+                        + np.column_stack([np.interp(chainage_m - half, grid[ok], ref[ok, i]) for i in range(3)]))
     u = -y_n if trolley.reference_rail == "left" else y_n
     ref_at_origin = np.column_stack([np.interp(chainage_m, grid[ok], ref[ok, i]) for i in range(3)])
     w = gauge_m + np.sum((ref_at_origin - origin) * u, axis=1)
@@ -143,20 +188,24 @@ def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m
     s_other = chainage_m + np.sum((other_n - ref_at_origin) * along, axis=1)
     other = _on_grid(s_other, other_n, grid)
     extra = _on_grid(chainage_m, np.column_stack([gauge_m, t_s]), grid)
-    keep = ok & np.isfinite(other[:, 0])
+    on_output = np.abs(grid / step_m - np.round(grid / step_m)) < 1e-6
+    keep = ok & np.isfinite(other[:, 0]) & on_output
     if np.count_nonzero(keep) < 4:
         raise TrackGeometryError("a pass covers fewer than 4 chainage steps; lower outputs.geometry_step_m")
     left, right = (ref, other) if trolley.reference_rail == "left" else (other, ref)
-    return RailTraces(grid[keep], left[keep], right[keep], extra[keep, 0], extra[keep, 1], direction)
+    return RailTraces(np.round(grid[keep] / step_m) * step_m, left[keep], right[keep], extra[keep, 0],
+                      extra[keep, 1], direction)
 
 
 def rail_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
                 trolley: TrolleyGeometry, step_m: float, gauge_t_s: np.ndarray | None = None,
                 gauge_reading_m: np.ndarray | None = None, nominal_gauge_m: float = 1.435,
-                min_speed_mps: float = 0.05, min_length_m: float = 1.0) -> list[RailTraces]:
+                min_speed_mps: float = 0.05, min_length_m: float = 1.0,
+                crossover_m: float | None = None, gauge_window_m: float | None = None) -> list[RailTraces]:
     """Rail traces of every pass of a dense trajectory (module docstring); arrays as in
     :func:`pass_traces` over the whole run; the gauge reading (K,) at ``gauge_t_s`` (K,) is
-    averaged over one grid step of chainage (:func:`box_mean`), or ``nominal_gauge_m`` without it."""
+    averaged over ``gauge_window_m`` of chainage (default one step; :func:`box_mean`), or
+    ``nominal_gauge_m`` without it; ``crossover_m``: see :func:`refine_with_attitude`."""
     passes = split_passes(t_s, chainage_m, min_speed_mps, min_length_m)
     if not passes:
         raise TrackGeometryError(f"the trajectory has no pass of at least {min_length_m:g} m in motion")
@@ -168,9 +217,10 @@ def rail_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m
             if np.count_nonzero(inside) < 2:
                 raise TrackGeometryError(f"no gauge readings between t = {t_s[p.start]:.1f} and {t_s[p.stop - 1]:.1f} s")
             gauge[p.start:p.stop] = box_mean(s_reading[inside], gauge_reading_m[inside],
-                                             chainage_m[p.start:p.stop], step_m)
+                                             chainage_m[p.start:p.stop], gauge_window_m or step_m)
     else:
         gauge = np.full(t_s.shape, float(nominal_gauge_m))
     return [pass_traces(t_s[p.start:p.stop], R_nb[p.start:p.stop], pos_n[p.start:p.stop],
-                        chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction)
+                        chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction,
+                        crossover_m)
             for p in passes]
