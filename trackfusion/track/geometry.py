@@ -24,7 +24,7 @@ from ..evaluation.repeatability import repeatability
 from . import irregularities as irr
 from .chainage import project_onto_design, regrid
 from .design import DesignAlignment
-from .shortwave import deformation_index, detect_defects, merge_defects
+from .shortwave import deformation_index, detect_defects, merge_defects, spatial_spectrum
 from .traces import RailTraces, TrolleyGeometry, rail_traces
 from .versines import chord_indicator, chord_offsets
 
@@ -283,8 +283,11 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
             exceedances += _limit_exceedances(table, c)
         elif design is None:
             skipped.append({"check": c.name, "reason": "needs a design alignment (inputs.design)"})
+        elif not any(np.ptp(tr.chainage_m) >= c.chord_m for tr in used):
+            skipped.append({"check": c.name, "reason": f"no pass is as long as the {c.chord_m:g} m chord"})
         else:
-            exceedances += [dict(e, passes=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
+            exceedances += [dict(e, pass_index=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
+                            if np.ptp(tr.chainage_m) >= c.chord_m
                             for e in _indicator_exceedances(tr, design_track, ds, c)]
     di_series, di_defects = [], []
     if pitch_rate_radps is not None and cfg.deformation_index.enabled:
@@ -318,6 +321,9 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
             "v_min_mps": cfg.deformation_index.v_min_mps,
             "defects": merge_defects(di_defects, cfg.deformation_index.merge_m),
             "defects_per_pass": [[d.to_json() for d in ds] for ds in di_defects]}
+    metrics["dominant_wavelengths_m"] = {
+        col: spatial_spectrum(table[col], step_m).dominant_m
+        for col in ("left_vertical_mm", "right_vertical_mm", "di_deg_per_m") if col in table and table[col].size >= 64}
     if len(tables) >= 2:
         metrics["repeatability"] = _repeatability(tables, cfg, step_m)
     table.pop("t_s", None)

@@ -28,10 +28,12 @@ from .versines import chord_transfer
 
 
 def deformation_index(pitch_rate_radps: np.ndarray, speed_mps: np.ndarray, v_min_mps: float) -> np.ndarray:
-    """DI [deg/m] (N,) = pitch rate / |speed|; NaN where ``|speed| < v_min_mps`` (seed 000 eq. 1)."""
-    v = np.abs(np.asarray(speed_mps, dtype=float))
+    """DI [deg/m] (N,) = pitch rate / speed (seed 000 eq. 1); NaN where ``|speed| < v_min_mps``.
+    The speed is signed (along increasing chainage), so the DI is the rail's change of slope
+    per metre of chainage whichever way the trolley runs, and passes in both directions agree."""
+    v = np.asarray(speed_mps, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(v >= v_min_mps, np.degrees(np.asarray(pitch_rate_radps, dtype=float)) / v, np.nan)
+        return np.where(np.abs(v) >= v_min_mps, np.degrees(np.asarray(pitch_rate_radps, dtype=float)) / v, np.nan)
 
 
 def di_amplitude(amplitude_m: float, wavelength_m, wheelbase_m: float) -> np.ndarray:
