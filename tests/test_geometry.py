@@ -326,3 +326,18 @@ def test_curvature_matching_odometry_corrects_a_bad_odometer():
     inside = (s_true > 100) & (s_true < 600)
     # measured: within 0.4 m from the first entry to the last exit (from 9.6 m); seed 001 states no figure
     assert raw_err > 9.0 and np.abs(s_est - s_true)[inside].max() < 0.5
+
+
+def test_chainage_method_needs_a_design_where_it_should(track):
+    s = np.arange(3.0, 30.0, 0.01)
+    geo, pos_n, R_nb = _known_pose(track, 1.2, (0.0, -0.7175, 0.25), (0, 0, 0), s)
+    trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")
+    for method in ("projection", "curvature_matching"):
+        with pytest.raises(ConfigError, match="needs a design"):
+            compute_geometry(s, R_nb, pos_n, s - 3.0, trolley, GeometryConfig(chainage=method), 0.25)
+    g = compute_geometry(s, R_nb, pos_n, s - 3.0, trolley, GeometryConfig(start_chainage_m=3.0), 0.25)
+    assert g.metrics["chainage"] == "odometer" and g.table["chainage_m"][0] == pytest.approx(3.0, abs=0.3)
+    g = compute_geometry(s, R_nb, pos_n, s, trolley, GeometryConfig(), 0.25, design=track.design)
+    assert g.metrics["chainage"] == "design (projection)"
+    assert np.abs(g.table["left_vertical_mm"] - 1e3 * track.irregularities.evaluate(g.table["chainage_m"])[
+        "vertical_left"]).max() < 1e-3

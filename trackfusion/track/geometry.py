@@ -19,10 +19,10 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from ..errors import ConfigError, EvaluationError, config_error_from_validation
+from ..errors import ConfigError, EvaluationError, TrackGeometryError, config_error_from_validation
 from ..evaluation.repeatability import repeatability
 from . import irregularities as irr
-from .chainage import project_onto_design, regrid
+from .chainage import curvature_matched_chainage, project_onto_design, regrid
 from .design import DesignAlignment
 from .shortwave import deformation_index, detect_defects, merge_defects, spatial_spectrum
 from .traces import RailTraces, TrolleyGeometry, rail_traces
@@ -56,6 +56,8 @@ class GeometryConfig(_Strict):
     """The ``geometry:`` pipeline section (docs/geometry.md)."""
 
     enabled: bool = True
+    chainage: Literal["auto", "odometer", "projection", "curvature_matching"] = "auto"
+    start_chainage_m: float = 0.0
     chords_m: list[float] = Field(default_factory=lambda: [10.0])
     asymmetric_chords: list[AsymmetricChord] = []
     twist_bases_m: list[float] = Field(default_factory=lambda: [3.0])
@@ -246,14 +248,24 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
                      trolley: TrolleyGeometry, cfg: GeometryConfig, step_m: float,
                      gauge_t_s: np.ndarray | None = None, gauge_m: np.ndarray | None = None,
                      pitch_rate_radps: np.ndarray | None = None, design: DesignAlignment | None = None,
-                     tolerances: tuple[str, list[ToleranceCheck]] | None = None) -> GeometryResult:
+                     tolerances: tuple[str, list[ToleranceCheck]] | None = None,
+                     absolute_positions: bool = True) -> GeometryResult:
     """Track geometry of a survey (module docstring).
 
     t_s (N,) [s], R_nb (N, 3, 3), pos_n (N, 3) [m]: the dense trajectory; chainage_m (N,) [m] of
     the trolley origin; gauge readings (K,) at gauge_t_s (K,) or None (nominal gauge);
-    pitch_rate_radps (N,) for the DI (or None: no DI); design: project onto it (positions must
-    be in the design's ``n``) and reference the irregularities and seed-002 checks to it.
+    pitch_rate_radps (N,) for the DI (or None: no DI); design: reference the irregularities and
+    seed-002 checks to it. Chainage (``cfg.chainage``): ``projection`` onto the design
+    (positions in the design's ``n``), ``odometer`` (``start_chainage_m`` + chainage_m),
+    ``curvature_matching`` (seed 001, :func:`.chainage.curvature_matched_chainage`), or
+    ``auto``: projection with a design and ``absolute_positions``, else the odometer.
     """
+    method = _chainage_method(cfg, design, absolute_positions)
+    if method == "curvature_matching":
+        chainage_m, anchors = curvature_matched_chainage(t_s, R_nb @ trolley.R_vb.T, chainage_m, design,
+                                                         cfg.start_chainage_m)
+    else:
+        chainage_m = cfg.start_chainage_m + np.asarray(chainage_m, dtype=float)
     checks = tolerances[1] if tolerances else []
     chords = sorted({(0.5 * c, 0.5 * c) for c in cfg.chords_m}
                     | {(0.5 * r, 0.5 * r) for r in cfg.repeatability_chords_m}
@@ -268,10 +280,13 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
     tables, used, design_s_all = [], [], []
     for tr in traces:
         ds = None
+        if method == "projection":
+            tr = regrid(tr, project_onto_design(0.5 * (tr.left_n + tr.right_n), design), step_m)
         if design is not None:
-            ds = project_onto_design(0.5 * (tr.left_n + tr.right_n), design)
-            tr = regrid(tr, ds, step_m)
             ds = tr.chainage_m
+            if ds.min() < 0 or ds.max() > design.length_m:
+                raise TrackGeometryError(f"chainage {ds.min():.1f}..{ds.max():.1f} m leaves the design alignment "
+                                         f"[0, {design.length_m:g}] m (set geometry.start_chainage_m)")
         tables.append(_pass_table(tr, cfg, chords, bases, step_m, design_track, ds))
         used.append(tr)
         design_s_all.append(ds)
@@ -307,7 +322,8 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "step_m": float(step_m),
         "length_m": float(table["chainage_m"][-1] - table["chainage_m"][0]),
         "passes": len(used),
-        "chainage": "design (projection)" if design is not None else "odometer",
+        "chainage": {"projection": "design (projection)", "odometer": "odometer",
+                     "curvature_matching": "odometer corrected by curvature matching (seed 001)"}[method],
         "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
         "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
@@ -315,6 +331,8 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "exceedances": exceedances,
         "skipped_checks": skipped,
     }
+    if method == "curvature_matching":
+        metrics["curvature_matching_anchors"] = [[{"s_app_m": a, "chainage_m": d} for a, d in p] for p in anchors]
     if di_series:
         metrics["deformation_index"] = {
             "threshold_deg_per_m": cfg.deformation_index.threshold_deg_per_m,
@@ -329,6 +347,14 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
     table.pop("t_s", None)
     units = _units(table)
     return GeometryResult(table, units, metrics, tables, used, di_series)
+
+
+def _chainage_method(cfg: GeometryConfig, design: DesignAlignment | None, absolute_positions: bool) -> str:
+    if cfg.chainage == "auto":
+        return "projection" if design is not None and absolute_positions else "odometer"
+    if cfg.chainage in ("projection", "curvature_matching") and design is None:
+        raise ConfigError(f"geometry.chainage: {cfg.chainage} needs a design alignment (inputs.design)")
+    return cfg.chainage
 
 
 def _sorted(s: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -391,6 +417,8 @@ def check_geometry_inputs(pipeline) -> None:
         load_design(pipeline.path(cfg.inputs.design))
     if cfg.geometry.tolerances is not None:
         load_tolerances(cfg.geometry.tolerances, pipeline.base_dir)
+    if cfg.geometry.chainage in ("projection", "curvature_matching") and cfg.inputs.design is None:
+        raise ConfigError(f"{pipeline.source}: geometry.chainage: {cfg.geometry.chainage} needs inputs.design")
 
 
 def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gauge) -> GeometryResult | None:
@@ -412,4 +440,4 @@ def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gaug
     tol = load_tolerances(g.tolerances, pipeline.base_dir) if g.tolerances else None
     return compute_geometry(dense.t_s, dense.R_nb, dense.pos_n, chainage_m, trolley, g, cfg.outputs.geometry_step_m,
                             None if gauge is None else gauge.t_s, None if gauge is None else gauge.gauge_m,
-                            pitch_rate, design, tol)
+                            pitch_rate, design, tol, absolute_positions=problem.gnss is not None)

@@ -116,7 +116,7 @@ def spatial_spectrum(values: np.ndarray, step_m: float, segment_m: float | None 
 
 
 def inverse_chord_filter(versine_m: np.ndarray, step_m: float, before_m: float, after_m: float,
-                         alpha: float = 1e-2) -> np.ndarray:
+                         alpha: float = 1e-3) -> np.ndarray:
     """Irregularity (N,) [m] reconstructed from a versine series (N,) on a uniform grid by the
     Tikhonov-regularised inverse of the chord's transfer function (module docstring).
     The series is mirrored at both ends before the FFT to limit wrap-around."""
