@@ -340,4 +340,4 @@ def test_chainage_method_needs_a_design_where_it_should(track):
     g = compute_geometry(s, R_nb, pos_n, s, trolley, GeometryConfig(), 0.25, design=track.design)
     assert g.metrics["chainage"] == "design (projection)"
     assert np.abs(g.table["left_vertical_mm"] - 1e3 * track.irregularities.evaluate(g.table["chainage_m"])[
-        "vertical_left"]).max() < 1e-3
+        "vertical_left"]).max() < 5e-3  # mm: linear regridding onto the design chainage
