@@ -341,3 +341,23 @@ def test_chainage_method_needs_a_design_where_it_should(track):
     assert g.metrics["chainage"] == "design (projection)"
     assert np.abs(g.table["left_vertical_mm"] - 1e3 * track.irregularities.evaluate(g.table["chainage_m"])[
         "vertical_left"]).max() < 5e-3  # mm: linear regridding onto the design chainage
+
+
+def test_report_figures(track):
+    from trackfusion.track import plots
+    s = np.arange(3.0, 57.0, 0.004)
+    geo, pos_n, R_nb = _known_pose(track, 1.2, (0.0, -0.7175, 0.25), (0, 0, 0), s)
+    trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")
+    pitch_rate = np.gradient(np.arcsin(np.clip((R_nb @ geo.R_vb.T)[:, 2, 0], -1, 1)), s / 1.5)
+    g = compute_geometry(s, R_nb, pos_n, s, trolley, GeometryConfig(chords_m=[10.0], repeatability_chords_m=[],
+                                                                     repeatability_limits_mm=[],
+                                                                     deformation_index={"threshold_deg_per_m": 0.5}),
+                         0.25, pitch_rate_radps=pitch_rate)
+    # the DI is the rail slope's change per metre: here, of the trolley's (1.2 m wheelbase) pitch
+    assert np.nanmax(np.abs(g.table["di_deg_per_m"])) > 0.1 and g.metrics["deformation_index"]["defects"]
+    figs = [plots.irregularities_figure(g.table, {"vertical": 1.0, "twist": 3.0}),
+            plots.versines_figure(g.table, 10.0, 2.0),
+            plots.deformation_index_figure(g.table, g.metrics["deformation_index"]),
+            plots.spectrum_figure({"left vertical": spatial_spectrum(g.table["left_vertical_mm"], 0.25)})]
+    assert [len(f.axes) for f in figs] == [4, 2, 1, 1]
+    assert all(plots.figure_png(f).startswith(b"\x89PNG") for f in figs)
