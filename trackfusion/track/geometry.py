@@ -138,6 +138,16 @@ class GeometryResult:
     traces: list[RailTraces] = field(default_factory=list)
     di: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
+    def sidecar(self) -> dict[str, Any]:
+        """Extra keys of geometry.json: what the columns rest on and their sign conventions."""
+        return {"description": "track geometry per chainage step: rail reference points (top of rail / running "
+                               "edge) in n and the quantities derived from them (docs/geometry.md)",
+                "chainage": self.metrics["chainage"], "irregularity_reference": self.metrics["irregularity_reference"],
+                "gauge": self.metrics["gauge"], "passes": self.metrics["passes"],
+                "sign_conventions": {"cross_level_mm": "left rail height minus right rail height",
+                                     "vertical": "positive up", "lateral": "positive to the left of increasing chainage",
+                                     "twist": "cross_level(s + B/2) - cross_level(s - B/2)"}}
+
 
 def pitch_rate_v(R_nb: np.ndarray, gyro_b: np.ndarray, gyro_bias_b: np.ndarray, omega_ie_n: np.ndarray,
                  R_vb: np.ndarray) -> np.ndarray:
@@ -381,19 +391,6 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
                     continue
                 out[col] = r.to_json()
     return out
-
-
-def _sidecar(self: GeometryResult) -> dict[str, Any]:
-    return {"description": "track geometry per chainage step: rail reference points (top of rail / running "
-                           "edge) in n and the quantities derived from them (docs/geometry.md)",
-            "chainage": self.metrics["chainage"], "irregularity_reference": self.metrics["irregularity_reference"],
-            "gauge": self.metrics["gauge"], "passes": self.metrics["passes"],
-            "sign_conventions": {"cross_level_mm": "left rail height minus right rail height",
-                                 "vertical": "positive up", "lateral": "positive to the left of increasing chainage",
-                                 "twist": "cross_level(s + B/2) - cross_level(s - B/2)"}}
-
-
-GeometryResult.sidecar = _sidecar
 
 
 def load_design(path: Path) -> DesignAlignment:
