@@ -365,9 +365,11 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                **_smoother_metrics(res, info)}
     # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
     from .track.geometry import geometry_for_run
+    tic_geometry = time.perf_counter()
     geometry = geometry_for_run(pipeline, problem, res, dense, chainage, log.gauge)
     if geometry is not None:
         metrics["geometry"] = geometry.metrics
+        timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
     # --- end track geometry ---
     if cfg.inputs.reference is not None:
         from .evaluation.reference import compare_with_reference
