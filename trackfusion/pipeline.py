@@ -42,7 +42,7 @@ Vec3 = tuple[float, float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
 
 class InputsConfig(_Strict):
@@ -81,7 +81,7 @@ class ImuConfig(ImuSpec):
         if isinstance(data, dict) and "grade" in data:
             data = dict(data)
             grade = data.pop("grade")
-            if grade not in IMU_GRADES:
+            if not isinstance(grade, str) or grade not in IMU_GRADES:
                 raise ValueError(f"unknown grade {grade!r} (known: {', '.join(IMU_GRADES)})")
             data = {**IMU_GRADES[grade].model_dump(), **data}
         return data

@@ -41,7 +41,7 @@ G0_MPS2 = 9.80665  #: standard gravity, for micro-g conversions [m/s^2]
 class ImuSpec(BaseModel):
     """IMU sensor specification (1-sigma values; units in the names)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
     rate_hz: float = Field(200.0, gt=0)
     gyro_arw_deg_per_sqrt_h: float = Field(0.001, ge=0)
