@@ -274,7 +274,8 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
-    input_checks.check_static_gyro_units(log.imu, imu_spec, static, src)  # issue 8
+    input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
+                                         src)  # issue 8
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
     inclinometer = None
     if log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled:

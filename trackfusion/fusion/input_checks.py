@@ -101,21 +101,42 @@ def check_imu_units(imu: ImuData, spec: ImuSpec, source: str, pipeline_source: s
                           f"of the log runs at {rate_hz:.6g} Hz")
 
 
-def check_static_gyro_units(imu: ImuData, spec: ImuSpec, static_intervals_s: list[tuple[float, float]],
+def odometer_rest_intervals(odometer: OdometerData | None, window_s: float = 2.0,
+                            max_speed_mps: float = 1e-3) -> list[tuple[float, float]]:
+    """Intervals [s] of at least ``window_s`` where the odometer moves by less than
+    ``max_speed_mps * window_s``: the trolley at rest, whatever the IMU says."""
+    if odometer is None or odometer.t_s.size < 2:
+        return []
+    t, d = odometer.t_s, odometer.distance_m
+    j = np.searchsorted(t, t + window_s)
+    ok = j < t.size
+    i = np.flatnonzero(ok)
+    quiet = np.abs(d[j[ok]] - d[i]) < max_speed_mps * window_s
+    return [(float(t[i[k]]), float(t[j[i[k]]])) for k in np.flatnonzero(quiet)[:: max(1, int(window_s / np.median(np.diff(t))))]]
+
+
+def check_static_gyro_units(imu: ImuData, spec: ImuSpec, rest_intervals_s: list[tuple[float, float]],
                             source: str) -> None:
-    """At rest the gyro measures the Earth rate plus its bias: a mean rate far above it (5x the Earth
-    rate plus the specified bias and bias instability) means deg/s written as rad/s."""
+    """At rest the gyro measures the Earth rate plus its bias. When even the quietest interval at
+    rest (``rest_intervals_s``: detected static intervals and intervals where the odometer stands
+    still) shows a mean rate above 5x the Earth rate plus the specified bias and bias instability,
+    the angular rate is not in rad/s (deg/s, say)."""
     limit = 5.0 * (OMEGA_IE_RADPS + np.radians(spec.gyro_bias_deg_per_h + spec.gyro_bias_instability_deg_per_h)
                    / 3600.0)
-    for a, b in static_intervals_s:
+    best = None
+    for a, b in rest_intervals_s:
         sel = (imu.t_s >= a) & (imu.t_s <= b)
+        if sel.sum() < 2:
+            continue
         rate = float(np.linalg.norm(imu.gyro_radps[sel].mean(axis=0)))
-        if rate > limit:
-            i = int(np.argmax(sel))
-            raise SensorDataError(
-                f"{source}: /imu record {i}: at rest from {a:.1f} to {b:.1f} s the mean angular rate is "
-                f"{rate:.3g} rad/s, more than the Earth rate plus the gyro bias allow ({limit:.3g}): "
-                "angular_velocity not in rad/s?")
+        if best is None or rate < best[0]:
+            best = (rate, a, b, int(np.argmax(sel)))
+    if best is not None and best[0] > limit:
+        rate, a, b, i = best
+        raise SensorDataError(
+            f"{source}: /imu record {i}: at rest from {a:.1f} to {b:.1f} s the mean angular rate is "
+            f"{rate:.3g} rad/s, more than the Earth rate plus the gyro bias allow ({limit:.3g}): "
+            "angular_velocity not in rad/s?")
 
 
 def check_odometer_units(odometer: OdometerData, source: str, gnss_path_m: float | None = None) -> None:
