@@ -103,7 +103,7 @@ def correct_clock_jumps(t_s: np.ndarray, x: np.ndarray, topic: str, source: str,
     off_grid = dt - whole * period
     regular = np.abs(off_grid) < 0.1 * period
     jitter = float(np.median(np.abs(off_grid[regular]))) if regular.any() else 0.0
-    tol = max(0.02 * period, 20.0 * jitter, 1e-6)
+    tol = max(1e-3 * period, 20.0 * jitter, 1e-6)  # the time-stamp jitter decides, not a fixed fraction
     candidates = np.flatnonzero((np.abs(off_grid) > tol) | (whole > 1.5))
     jumps: list[dict[str, Any]] = []
     shift = 0.0

@@ -104,13 +104,15 @@ def inject_gnss_outage(log: SensorLog, *, strength: float = 30.0, start_s: float
     return out, {"fault": "gnss_outage", "start_s": start, "duration_s": strength, "fixes_removed": int((~keep).sum())}
 
 
-def motion_start_s(log: SensorLog, threshold_m: float = 1e-3) -> float:
-    """Time [s] the odometer first reports more than ``threshold_m`` of travel."""
+def motion_start_s(log: SensorLog, threshold_m: float = 1e-3, from_end: bool = False) -> float:
+    """Time [s] the odometer first (``from_end``: last) reports more than ``threshold_m`` of travel
+    from its first (last) reading."""
     o = _need(log.odometer, "odometer")
-    moved = np.flatnonzero(np.abs(o.distance_m - o.distance_m[0]) > threshold_m)
+    ref = o.distance_m[-1] if from_end else o.distance_m[0]
+    moved = np.flatnonzero(np.abs(o.distance_m - ref) > threshold_m)
     if not moved.size:
         raise SimulationError("fault injection: the odometer never moves")
-    return float(o.t_s[moved[0]])
+    return float(o.t_s[moved[-1] if from_end else moved[0]])
 
 
 def _moving_time(log: SensorLog, after_s: float) -> float:
@@ -169,20 +171,24 @@ def inject_clock_jump(log: SensorLog, *, strength: float = 0.3, topic: str = "/g
     return out, {"fault": "clock_jump", "topic": topic, "at_s": float(at_s), "step_s": strength}
 
 
-def drop_static_start(log: SensorLog, *, strength: float = 0.0) -> tuple[SensorLog, dict]:
-    """Cut every sensor's data before the motion starts (+ ``strength`` [s]): a run with no static
-    period at its start (logging began late). Needs an odometer (to find the start)."""
-    cut = motion_start_s(log) + strength
+def drop_static_start(log: SensorLog, *, strength: float = 0.0, ends: tuple[str, ...] = ("start",)
+                      ) -> tuple[SensorLog, dict]:
+    """Cut every sensor's data before the motion starts (+ ``strength`` [s]) and, with ``"end"`` in
+    ``ends``, after it stops (- ``strength``): a run without a static period at that end (logging
+    began late or stopped early). Needs an odometer (to find the motion)."""
+    lo = motion_start_s(log) + strength if "start" in ends else -np.inf
+    hi = motion_start_s(log, from_end=True) - strength if "end" in ends else np.inf
     out = _copy(log)
     for name in ("imu", "odometer", "gnss", "inclinometer", "gauge"):
         data = getattr(out, name)
         if data is None:
             continue
-        keep = data.t_s >= cut
+        keep = (data.t_s >= lo) & (data.t_s <= hi)
         fields = {k: (np.asarray(v)[keep] if isinstance(v, np.ndarray) and v.shape[:1] == keep.shape else v)
                   for k, v in vars(data).items()}
         setattr(out, name, type(data)(**fields))
-    return out, {"fault": "missing_static_period", "cut_s": cut}
+    return out, {"fault": "missing_static_period", "ends": list(ends),
+                 "kept_s": [float(v) if np.isfinite(v) else None for v in (lo, hi)]}
 
 
 def inject_imu_saturation(log: SensorLog, *, strength: float = 0.2, limit: float, axis: int = 2,
@@ -222,4 +228,7 @@ INJECTORS: dict[str, Injector] = {
                                     (0.005, 0.05, 0.5), "s", "clock_jumps"),
     "missing_static_start": Injector(drop_static_start, (0.0,), "s after the motion starts",
                                      "missing_static_period"),
+    "missing_static_both_ends": Injector(lambda log, *, strength: drop_static_start(log, strength=strength,
+                                                                                   ends=("start", "end")),
+                                         (0.0,), "s inside the motion", "missing_static_period"),
 }
