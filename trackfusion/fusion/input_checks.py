@@ -111,8 +111,9 @@ def odometer_rest_intervals(odometer: OdometerData | None, window_s: float = 2.0
     j = np.searchsorted(t, t + window_s)
     ok = j < t.size
     i = np.flatnonzero(ok)
-    quiet = np.abs(d[j[ok]] - d[i]) < max_speed_mps * window_s
-    return [(float(t[i[k]]), float(t[j[i[k]]])) for k in np.flatnonzero(quiet)[:: max(1, int(window_s / np.median(np.diff(t))))]]
+    quiet = np.flatnonzero(np.abs(d[j[ok]] - d[i]) < max_speed_mps * window_s)
+    step = max(1, int(window_s / np.median(np.diff(t))))   # windows about one window apart
+    return [(float(t[i[k]]), float(t[j[i[k]]])) for k in quiet[::step]]
 
 
 def check_static_gyro_units(imu: ImuData, spec: ImuSpec, rest_intervals_s: list[tuple[float, float]],
@@ -123,19 +124,23 @@ def check_static_gyro_units(imu: ImuData, spec: ImuSpec, rest_intervals_s: list[
     the angular rate is not in rad/s (deg/s, say)."""
     limit = 5.0 * (OMEGA_IE_RADPS + np.radians(spec.gyro_bias_deg_per_h + spec.gyro_bias_instability_deg_per_h)
                    / 3600.0)
-    best = None
-    for a, b in rest_intervals_s:
-        sel = (imu.t_s >= a) & (imu.t_s <= b)
-        if sel.sum() < 2:
-            continue
-        rate = float(np.linalg.norm(imu.gyro_radps[sel].mean(axis=0)))
-        if best is None or rate < best[0]:
-            best = (rate, a, b, int(np.argmax(sel)))
-    if best is not None and best[0] > limit:
-        rate, a, b, i = best
+    if not rest_intervals_s:
+        return
+    ab = np.asarray(rest_intervals_s, dtype=float)
+    i0 = np.searchsorted(imu.t_s, ab[:, 0])
+    i1 = np.searchsorted(imu.t_s, ab[:, 1], side="right")
+    ok = i1 - i0 >= 2
+    if not ok.any():
+        return
+    cum = np.vstack([np.zeros(3), np.cumsum(imu.gyro_radps - imu.gyro_radps[0], axis=0)])
+    mean = (cum[i1[ok]] - cum[i0[ok]]) / (i1[ok] - i0[ok])[:, None] + imu.gyro_radps[0]
+    rate = np.linalg.norm(mean, axis=1)
+    k = int(np.argmin(rate))
+    if rate[k] > limit:
+        (a, b), i = ab[ok][k], int(i0[ok][k])
         raise SensorDataError(
             f"{source}: /imu record {i}: at rest from {a:.1f} to {b:.1f} s the mean angular rate is "
-            f"{rate:.3g} rad/s, more than the Earth rate plus the gyro bias allow ({limit:.3g}): "
+            f"{rate[k]:.3g} rad/s, more than the Earth rate plus the gyro bias allow ({limit:.3g}): "
             "angular_velocity not in rad/s?")
 
 
