@@ -191,6 +191,7 @@ NAV = IMU_GRADES["navigation"]
      ["/odometer record", "not in metres"]),
     (lambda log: log.gnss.__setattr__("lat_deg", np.radians(log.gnss.lat_deg)), ["/gnss record 0", "km from the origin"]),
     (lambda log: log.gnss.cov_enu_m2.__setitem__((4, 2, 2), -1e-4), ["/gnss record 4", "position_covariance"]),
+    (lambda log: log.gnss.lat_deg.__setitem__(6, 100.0), ["/gnss record 6", "not geodetic degrees"]),
 ])
 def test_implausible_series_refused(survey, tmp_path, capsys, edit, needles):
     _run_fails(_case_dir(survey, tmp_path, log=_modified(survey[1], edit)), capsys, "log.mcap", *needles)

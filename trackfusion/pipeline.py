@@ -247,15 +247,19 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
     src = str(pipeline.path(cfg.inputs.log))
     use_gnss = log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled
+    use_odometer = log.odometer is not None and sensors.odometer is not None and fs.odometer.enabled
+    use_inclinometer = log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled
+    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use_gnss else None,
+                           odometer=log.odometer if use_odometer else None,
+                           inclinometer=log.inclinometer if use_inclinometer else None)
     gnss = GnssFixes.from_data(log.gnss, origin, sensors.gnss.lever_arm_b_m, sensors.gnss.clock_offset_s) \
         if use_gnss else None
-    input_checks.check_log(log, imu_spec, None if gnss is None else gnss.pos_n, src, pipeline.source)
     info["clock_jumps"] = []
     if gnss is not None:
         gnss.t_s, jumps = faults.correct_clock_jumps(gnss.t_s, gnss.pos_n, "/gnss", src, noise=0.05)
         info["clock_jumps"] += jumps
     # --- end issue 8
-    if log.odometer is not None and sensors.odometer is not None and fs.odometer.enabled:
+    if use_odometer:
         odo = log.odometer
         t = preprocess.sensor_times_to_imu_clock(odo.t_s, sensors.odometer.clock_offset_s)
         t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # issue 8
@@ -278,7 +282,7 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
                                          src)  # issue 8
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
     inclinometer = None
-    if log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled:
+    if use_inclinometer:
         inc = log.inclinometer
         t = preprocess.sensor_times_to_imu_clock(inc.t_s, sensors.inclinometer.clock_offset_s)
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)

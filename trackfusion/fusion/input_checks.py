@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import geodesy
 from ..errors import ConfigError, SensorDataError
 from ..geodesy import OMEGA_IE_RADPS
 from ..sensors.imu import ImuSpec
@@ -198,15 +199,23 @@ def check_inclinometer_units(inc: InclinometerData, source: str) -> None:
                                   f"railway ({MAX_TILT_RAD} rad): degrees instead of radians?")
 
 
-def check_log(log, spec: ImuSpec, gnss_pos_n: np.ndarray | None, source: str, pipeline_source: str) -> None:
-    """Every check above on the sensors of a :class:`~trackfusion.sensors.types.SensorLog` that the
-    pipeline uses (``gnss_pos_n`` (N,3) [m]: the fixes in ``n``, None without GNSS)."""
-    check_imu_saturation(log.imu, spec, source)
-    check_imu_units(log.imu, spec, source, pipeline_source)
-    if log.gnss is not None and gnss_pos_n is not None:
-        check_gnss(log.gnss, gnss_pos_n, source)
-    if log.odometer is not None:
-        check_odometer_units(log.odometer, source,
-                             gnss_path_length_m(gnss_pos_n) if gnss_pos_n is not None and len(gnss_pos_n) else None)
-    if log.inclinometer is not None:
-        check_inclinometer_units(log.inclinometer, source)
+def check_log(imu: ImuData, spec: ImuSpec, origin, source: str, pipeline_source: str, *,
+              gnss: GnssData | None = None, odometer: OdometerData | None = None,
+              inclinometer: InclinometerData | None = None) -> None:
+    """Every check above on the sensors a pipeline uses (None: not used); ``origin``: the
+    :class:`~trackfusion.geodesy.Origin` of ``n``."""
+    check_imu_saturation(imu, spec, source)
+    check_imu_units(imu, spec, source, pipeline_source)
+    pos_n = None
+    if gnss is not None and gnss.t_s.size:
+        bad = ~(np.abs(gnss.lat_deg) <= 90.0) | ~(np.abs(gnss.lon_deg) <= 360.0)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SensorDataError(f"{source}: /gnss record {i}: latitude {gnss.lat_deg[i]!r}, longitude "
+                                  f"{gnss.lon_deg[i]!r} are not geodetic degrees (swapped?)")
+        pos_n = geodesy.geodetic_to_n(gnss.lat_deg, gnss.lon_deg, gnss.h_m, origin)
+        check_gnss(gnss, pos_n, source)
+    if odometer is not None:
+        check_odometer_units(odometer, source, gnss_path_length_m(pos_n) if pos_n is not None else None)
+    if inclinometer is not None:
+        check_inclinometer_units(inclinometer, source)
