@@ -59,7 +59,7 @@ class ImuSpec(BaseModel):
     accel_misalignment_arcsec: float = Field(5.0, ge=0)
     accel_quantum_mps: float = Field(0.0, ge=0)
     gyro_range_deg_per_s: float = Field(400.0, gt=0)
-    accel_range_mps2: float = Field(10.0 * 9.80665, gt=0)
+    accel_range_mps2: float = Field(98.0665, gt=0)  # 10 g
 
 
 #: Named grades: seed 002 (navigation, 200 Hz), seed 003 (navigation, 500 Hz),
@@ -83,7 +83,7 @@ IMU_GRADES: dict[str, ImuSpec] = {
                              gyro_misalignment_arcsec=100.0, accel_vrw_mps_per_sqrt_h=0.05,
                              accel_bias_ug=200.0, accel_bias_instability_ug=50.0, accel_bias_tau_s=300.0,
                              accel_scale_ppm=300.0, accel_misalignment_arcsec=100.0,
-                             gyro_range_deg_per_s=450.0, accel_range_mps2=8.0 * 9.80665),
+                             gyro_range_deg_per_s=450.0, accel_range_mps2=78.4532),  # 8 g
 }
 
 
