@@ -428,9 +428,12 @@ def format_summary(result: RunResult) -> str:
              "  time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in t.items())]
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
-    if m.get("faults"):
+    if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
+        if "missing_static_period" in m["faults"]:
+            miss = m["faults"]["missing_static_period"]
+            lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")
     if "relative_accuracy" in m:
         for c in ("vertical", "lateral"):
             ra = m["relative_accuracy"][c]
