@@ -14,7 +14,7 @@ import yaml
 from trackfusion.errors import SensorDataError
 from trackfusion.fusion import faults
 from trackfusion.fusion.input_checks import _flat_runs_at_limit
-from trackfusion.pipeline import parse_pipeline, run
+from trackfusion.pipeline import format_summary, parse_pipeline, run
 from trackfusion.sensors.mcap_log import read_log, write_log
 from trackfusion.simulation import faults as inj
 from trackfusion.simulation.scenarios import simulate_to_dir
@@ -240,6 +240,7 @@ def test_run_without_a_static_start_aligns_elsewhere_and_says_so(clean, ends, ep
     m = res.metrics
     miss = m["faults"]["missing_static_period"]
     assert miss["at"] == list(ends) and miss["alignment_epoch"] == epoch and m["alignment"]["epoch"] == epoch
+    assert f"no static period at the {' and '.join(ends)}: " in format_summary(res)
     assert _abs_rms_3d(m) / _abs_rms_3d(base.metrics) < 1.5
     assert m["relative_accuracy"]["vertical"]["mse_at_threshold_mm"] < 1.2 * \
         base.metrics["relative_accuracy"]["vertical"]["mse_at_threshold_mm"]
