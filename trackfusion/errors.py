@@ -49,5 +49,5 @@ def config_error_from_validation(exc, source: str) -> ConfigError:
     """A :class:`ConfigError` of one line naming ``source`` and the first invalid field path
     of a pydantic ``ValidationError`` (``source: imu.rate_hz: Input should be greater than 0``)."""
     err = exc.errors()[0]
-    path = ".".join(str(p) for p in err["loc"]) or "(top level)"
-    return ConfigError(f"{source}: {path}: {err['msg']}")
+    path = ".".join(str(p) if str(p).isprintable() else repr(p) for p in err["loc"]) or "(top level)"
+    return ConfigError(f"{source}: {path}: {' '.join(str(err['msg']).split())}")

@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from . import geodesy
 from .errors import ConfigError, FusionError, config_error_from_validation
-from .fusion import preprocess
+from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
@@ -43,7 +43,7 @@ Vec3 = tuple[float, float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
 
 class InputsConfig(_Strict):
@@ -84,7 +84,7 @@ class ImuConfig(ImuSpec):
         if isinstance(data, dict) and "grade" in data:
             data = dict(data)
             grade = data.pop("grade")
-            if grade not in IMU_GRADES:
+            if not isinstance(grade, str) or grade not in IMU_GRADES:
                 raise ValueError(f"unknown grade {grade!r} (known: {', '.join(IMU_GRADES)})")
             data = {**IMU_GRADES[grade].model_dump(), **data}
         return data
@@ -213,14 +213,21 @@ TRAJECTORY_UNITS = {
 }
 
 
-def _read(pipeline: Pipeline) -> SensorLog:
-    from .sensors.mcap_log import read_log
+def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> tuple[SensorLog, dict | None]:
+    """The log and, when ``inputs.allow_truncated`` kept the readable part of a damaged file, what
+    was lost (reported and listed in ``faults.truncated_log``)."""
+    from .sensors.mcap_log import read_log_with_damage
     cfg = pipeline.config
     topics = ["/imu", "/odometer", "/gnss", "/inclinometer", "/gauge"]
-    log = read_log(pipeline.path(cfg.inputs.log), topics=topics, allow_truncated=cfg.inputs.allow_truncated)
-    if log.imu is None:
-        raise FusionError(f"{pipeline.path(cfg.inputs.log)}: the log has no /imu topic")
-    return log
+    path = pipeline.path(cfg.inputs.log)
+    log, damage = read_log_with_damage(path, topics=topics, allow_truncated=cfg.inputs.allow_truncated)
+    if damage is not None:
+        readable = ", ".join(f"{k} {v}" for k, v in damage["records_readable"].items()) or "no records"
+        say(f"warning: {path} is damaged at byte {damage['byte']} ({damage['reason']}); running on the readable "
+            f"part ({readable}) because inputs.allow_truncated is set")
+    if log.imu is None or log.imu.t_s.size < 2:
+        raise FusionError(f"{path}: the log has no /imu records" + (" before the damage" if damage else ""))
+    return log, damage
 
 
 def _origin(pipeline: Pipeline, log: SensorLog) -> geodesy.Origin:
@@ -242,16 +249,33 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     origin = _origin(pipeline, log)
     odometer = None
     info: dict[str, Any] = {}
-    if log.odometer is not None and sensors.odometer is not None and fs.odometer.enabled:
+    imu_spec = ImuSpec(**sensors.imu.model_dump())
+    # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
+    src = str(pipeline.path(cfg.inputs.log))
+    use_gnss = log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled
+    use_odometer = log.odometer is not None and sensors.odometer is not None and fs.odometer.enabled
+    use_inclinometer = log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled
+    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use_gnss else None,
+                           odometer=log.odometer if use_odometer else None,
+                           inclinometer=log.inclinometer if use_inclinometer else None)
+    gnss = GnssFixes.from_data(log.gnss, origin, sensors.gnss.lever_arm_b_m, sensors.gnss.clock_offset_s) \
+        if use_gnss else None
+    info["clock_jumps"] = []
+    if gnss is not None:
+        gnss.t_s, jumps = faults.correct_clock_jumps(gnss.t_s, gnss.pos_n, "/gnss", src, noise=0.05)
+        info["clock_jumps"] += jumps
+    # --- end issue 8
+    if use_odometer:
         odo = log.odometer
         t = preprocess.sensor_times_to_imu_clock(odo.t_s, sensors.odometer.clock_offset_s)
+        t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # issue 8
+        info["clock_jumps"] += jumps
         odometer, repaired = preprocess.repair_odometer(OdometerData(t, odo.distance_m, odo.ticks),
                                                         window=fs.odometer.gross_error_window,
                                                         threshold_m=fs.odometer.gross_error_threshold_m)
         info["odometer_gross_errors"] = repaired
         say(f"odometer: {odo.t_s.size} records, {len(repaired)} gross errors repaired")
     st = cfg.static
-    imu_spec = ImuSpec(**sensors.imu.model_dump())
     imu_rate_hz = 1.0 / float(np.median(np.diff(log.imu.t_s)))
     gyro_thr, accel_thr = st.thresholds(imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.accel_vrw_mps_per_sqrt_h,
                                         imu_rate_hz)
@@ -260,12 +284,11 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
+    input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
+                                         src)  # issue 8
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
-    gnss = None
-    if log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled:
-        gnss = GnssFixes.from_data(log.gnss, origin, sensors.gnss.lever_arm_b_m, sensors.gnss.clock_offset_s)
     inclinometer = None
-    if log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled:
+    if use_inclinometer:
         inc = log.inclinometer
         t = preprocess.sensor_times_to_imu_clock(inc.t_s, sensors.inclinometer.clock_offset_s)
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
@@ -342,10 +365,12 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     timings: dict[str, float] = {}
     tic = time.perf_counter()
     say(f"[{cfg.name}] reading {pipeline.path(cfg.inputs.log)}")
-    log = _read(pipeline)
+    log, damage = _read(pipeline, say)
     timings["read_s"] = time.perf_counter() - tic
     tic = time.perf_counter()
     problem, info = build_problem(pipeline, log, say)
+    found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
+             "odometer_gross_errors": info.get("odometer_gross_errors")}
     timings["preprocess_s"] = time.perf_counter() - tic
     res = smooth(problem, say)
     timings.update(res.timings_s)
@@ -362,7 +387,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                "imu_samples": int(problem.imu.t_s.size),
                                "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),
                                "trajectory_rate_hz": float(imu_rate / every),
-                               **_smoother_metrics(res, info)}
+                               **_smoother_metrics(res, info),
+                               "faults": faults.detected_faults(problem, res, found)}
     # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
     from .track.geometry import geometry_for_run
     tic_geometry = time.perf_counter()
@@ -419,6 +445,12 @@ def format_summary(result: RunResult) -> str:
              "  time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in t.items())]
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
+    if m.get("faults"):  # issue 8: docs/robustness.md
+        lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
+                                                  for k, v in m["faults"].items()))
+        if "missing_static_period" in m["faults"]:
+            miss = m["faults"]["missing_static_period"]
+            lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")
     if "relative_accuracy" in m:
         for c in ("vertical", "lateral"):
             ra = m["relative_accuracy"][c]

@@ -33,7 +33,11 @@ class Alignment:
     roll_rad, pitch_rad, yaw_rad [rad]; method: ``"gyrocompass"``, ``"displacement"``,
     ``"coarse-gyrocompass"`` (gyros of up to 2 deg/h and nothing better: heading good to a few
     degrees) or ``"none"`` (no heading information: yaw 0, trajectory in an arbitrary azimuth);
-    static_s: duration of the static data used [s].
+    static_s: duration of the static data used [s]; epoch: where the attitude holds, ``"start"``
+    (static period at the start), ``"end"`` (none at the start: the static period at the end; the
+    smoother chains the attitude back to the start) or ``"moving"`` (no static period at either
+    end: levelled with the mean specific force of the first seconds, corrected for the
+    acceleration along the track, heading from the GNSS displacement).
     """
 
     roll_rad: float
@@ -41,6 +45,7 @@ class Alignment:
     yaw_rad: float
     method: str
     static_s: float
+    epoch: str = "start"
 
     @property
     def R_nb(self) -> np.ndarray:
@@ -51,7 +56,7 @@ class Alignment:
         """Degrees for people."""
         return {"roll_deg": float(np.degrees(self.roll_rad)), "pitch_deg": float(np.degrees(self.pitch_rad)),
                 "yaw_deg": float(np.degrees(self.yaw_rad)), "heading_method": self.method,
-                "static_s": self.static_s}
+                "static_s": self.static_s, "epoch": self.epoch}
 
 
 def level(accel_mean_b: np.ndarray) -> tuple[float, float]:
@@ -102,3 +107,91 @@ def align(gyro_b: np.ndarray, accel_b: np.ndarray, lat_rad: float, gyro_bias_deg
     if gyro_bias_deg_per_h <= COARSE_GYROCOMPASS_MAX_BIAS_DEG_PER_H and horizontal_rate > 1e-6:
         return Alignment(roll, pitch, gyrocompass(gyro_b.mean(axis=0), roll, pitch), "coarse-gyrocompass", static_s)
     return Alignment(roll, pitch, 0.0, "none", static_s)
+
+
+# --- which data the alignment uses (issue 8: a run without a static period at one end) ---------------
+
+#: a static interval starting (ending) within this time of the first (last) IMU sample is at that end [s]
+END_MARGIN_S = 5.0
+#: levelling while moving averages the specific force over this long [s]
+MOVING_LEVEL_S = 10.0
+
+
+def _displacement(problem, from_end: bool) -> tuple[np.ndarray, bool] | None:
+    """First (or, ``from_end``, last) GNSS displacement of more than 5 m in the direction of travel,
+    and whether the trolley moved forwards then (from the odometer; forwards without one)."""
+    g = problem.gnss
+    if g is None or g.t_s.size < 2:
+        return None
+    ref = -1 if from_end else 0
+    far = np.flatnonzero(np.linalg.norm(g.pos_n - g.pos_n[ref], axis=1) > 5.0)
+    if not far.size:
+        return None
+    i = far[-1] if from_end else far[0]
+    a, b = (i, g.t_s.size - 1) if from_end else (0, i)
+    forward = True
+    odo = problem.odometer
+    if odo is not None:
+        forward = bool(np.interp(g.t_s[b], odo.t_s, odo.distance_m) >= np.interp(g.t_s[a], odo.t_s, odo.distance_m))
+    return g.pos_n[b] - g.pos_n[a], forward
+
+
+def _moving_level(problem) -> tuple[float, float]:
+    """Roll and pitch [rad] from the mean specific force over the first ``MOVING_LEVEL_S`` of a run
+    that starts moving, minus the mean acceleration along the trolley axis (change of the odometer
+    or GNSS speed over the window)."""
+    imu = problem.imu
+    t0 = imu.t_s[0]
+    t1 = min(t0 + MOVING_LEVEL_S, imu.t_s[-1])
+    sel = imu.t_s <= t1
+    odo, g = problem.odometer, problem.gnss
+    if odo is not None:
+        speed = np.gradient(odo.distance_m, odo.t_s)
+        v0, v1 = np.interp([t0, t1], odo.t_s, speed)
+    else:
+        v = np.linalg.norm(np.gradient(g.pos_n, g.t_s, axis=0), axis=1)
+        v0, v1 = np.interp([t0, t1], g.t_s, v)
+    accel_along = (v1 - v0) / max(t1 - t0, 1e-9)
+    return level(imu.accel_mps2[sel].mean(axis=0) - accel_along * problem.trolley.axis_b)
+
+
+def initial_alignment(problem) -> Alignment:
+    """The initial attitude of a :class:`~trackfusion.fusion.problem.FusionProblem`.
+
+    Uses the static period at the start of the run (within ``END_MARGIN_S``); without one, the
+    static period at the end (``epoch="end"``); without either, levelling while moving and the
+    GNSS heading (``epoch="moving"``). Raises :class:`FusionError` when there is no static period
+    at either end and no GNSS (no heading and no level).
+    """
+    imu, t = problem.imu, problem.imu.t_s
+    lat = np.radians(problem.origin.lat_deg)
+    intervals = problem.static_intervals_s
+    start = [iv for iv in intervals if iv[0] <= t[0] + END_MARGIN_S]
+    end = [iv for iv in intervals if iv[1] >= t[-1] - END_MARGIN_S]
+    for ivs, epoch in ((start, "start"), (end, "end")):
+        if ivs:
+            a, b = ivs[0] if epoch == "start" else ivs[-1]
+            sel = (t >= a) & (t <= b)
+            al = align(imu.gyro_radps[sel], imu.accel_mps2[sel], lat, problem.imu_gyro_bias_deg_per_h, float(b - a),
+                       _displacement(problem, from_end=epoch == "end"), problem.trolley.R_vb)
+            al.epoch = epoch
+            return al
+    displacement = _displacement(problem, from_end=False)
+    if displacement is None:
+        raise FusionError("initial alignment: no static period at either end of the run and no GNSS "
+                          "displacement to take the heading from (see the static detection settings)")
+    roll, pitch = _moving_level(problem)
+    d, forward = displacement
+    return Alignment(roll, pitch, heading_from_displacement(d, forward, problem.trolley.R_vb, roll, pitch),
+                     "displacement", 0.0, "moving")
+
+
+def back_to_start(R_chain: np.ndarray, R_end: np.ndarray, omega_ie_n: np.ndarray, duration_s: float) -> np.ndarray:
+    """Attitude (3,3) at the start such that the attitude chain ends at ``R_end`` (3,3).
+
+    ``R_chain`` (K,3,3) is a chain ``R[k] = E_k R[0] D_k`` started anywhere, where ``E_k`` is the
+    Earth's rotation (about one axis, so the factors commute) and ``D_k`` the body rotations;
+    ``omega_ie_n`` (3,) [rad/s], ``duration_s`` the chain's span [s]."""
+    from ..rotations import so3_exp
+    E = so3_exp(-np.asarray(omega_ie_n, dtype=float) * duration_s)
+    return E.T @ R_end @ R_chain[-1].T @ E @ R_chain[0]

@@ -24,7 +24,7 @@ from .. import geodesy
 from ..errors import FusionError
 from ..rotations import so3_exp
 from . import factors as fx
-from .alignment import Alignment, align
+from .alignment import Alignment, back_to_start, initial_alignment
 from .preintegration import preintegrate
 from .problem import FusionProblem
 
@@ -95,27 +95,8 @@ def static_mask(t_s: np.ndarray, intervals: list[tuple[float, float]]) -> np.nda
 
 
 def _alignment(problem: FusionProblem) -> Alignment:
-    imu = problem.imu
-    start = [iv for iv in problem.static_intervals_s if iv[0] <= imu.t_s[0] + 5.0]
-    if start:
-        sel = (imu.t_s >= start[0][0]) & (imu.t_s <= start[0][1])
-        static_s = float(start[0][1] - start[0][0])
-    else:
-        sel = np.zeros(imu.t_s.size, dtype=bool)
-        static_s = 0.0
-    displacement = None
-    g = problem.gnss
-    if g is not None and g.t_s.size > 1:
-        far = np.flatnonzero(np.linalg.norm(g.pos_n - g.pos_n[0], axis=1) > 5.0)
-        if far.size:
-            forward = True
-            odo = problem.odometer
-            if odo is not None:
-                forward = bool(np.interp(g.t_s[far[0]], odo.t_s, odo.distance_m) >= odo.distance_m[0])
-            displacement = (g.pos_n[far[0]] - g.pos_n[0], forward)
-    lat = np.radians(problem.origin.lat_deg)
-    return align(imu.gyro_radps[sel], imu.accel_mps2[sel], lat, problem.imu_gyro_bias_deg_per_h, static_s,
-                 displacement, problem.trolley.R_vb)
+    # start, else end static period, else levelling while moving (issue 8; fusion/alignment.py)
+    return initial_alignment(problem)
 
 
 def _chain_rotations(R0: np.ndarray, pims, dt_key: np.ndarray, omega_ie_n: np.ndarray) -> np.ndarray:
@@ -487,6 +468,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
 
     tic = time.perf_counter()
     R0 = _chain_rotations(alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
+    if alignment.epoch == "end":  # aligned on the static period at the end: chain back to the start
+        R0 = _chain_rotations(back_to_start(R0, alignment.R_nb, omega_ie_n, t_key[-1] - t_key[0]), pims,
+                              np.diff(t_key), omega_ie_n)
     pos0, vel0 = initial_states(problem if gnss is not None else _without_gnss(problem), t_key, R0, static)
     if fs.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity

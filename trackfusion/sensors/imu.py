@@ -16,6 +16,10 @@ A measured sample (mean over its interval dt = 1 / rate_hz) is::
 - quantisation of the increments ``w dt`` and ``f dt`` to ``gyro_quantum_rad`` and
   ``accel_quantum_mps`` with the remainder carried over (as integrating IMUs
   do), so quantisation adds noise but no drift.
+- saturation: each axis is clipped to +-``gyro_range_deg_per_s`` and
+  +-``accel_range_mps2`` (the measurement range of the grade's data sheet class);
+  a flat-lined axis at the limit is refused by ``trackfusion run``
+  (:mod:`trackfusion.fusion.input_checks`).
 
 Grades (:data:`IMU_GRADES`) follow the seeds: seed 002's navigation-grade IMU,
 seed 003's at 500 Hz, seed 000's FOG and a tactical MEMS of seed 004's class.
@@ -37,7 +41,7 @@ G0_MPS2 = 9.80665  #: standard gravity, for micro-g conversions [m/s^2]
 class ImuSpec(BaseModel):
     """IMU sensor specification (1-sigma values; units in the names)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
     rate_hz: float = Field(200.0, gt=0)
     gyro_arw_deg_per_sqrt_h: float = Field(0.001, ge=0)
@@ -54,10 +58,14 @@ class ImuSpec(BaseModel):
     accel_scale_ppm: float = Field(20.0, ge=0)
     accel_misalignment_arcsec: float = Field(5.0, ge=0)
     accel_quantum_mps: float = Field(0.0, ge=0)
+    gyro_range_deg_per_s: float = Field(400.0, gt=0)
+    accel_range_mps2: float = Field(98.0665, gt=0)  # 10 g
 
 
 #: Named grades: seed 002 (navigation, 200 Hz), seed 003 (navigation, 500 Hz),
-#: seed 000 (FOG, 300 Hz), seed 004 class (tactical MEMS, 200 Hz).
+#: seed 000 (FOG, 300 Hz), seed 004 class (tactical MEMS, 200 Hz). Measurement ranges (the seeds
+#: are silent; typical data-sheet values of each class): navigation +-400 deg/s, +-10 g; FOG
+#: +-500 deg/s, +-10 g; tactical MEMS +-450 deg/s, +-8 g.
 IMU_GRADES: dict[str, ImuSpec] = {
     "navigation": ImuSpec(rate_hz=200.0, gyro_arw_deg_per_sqrt_h=0.001, gyro_bias_deg_per_h=0.01,
                           gyro_bias_instability_deg_per_h=0.005, accel_vrw_mps_per_sqrt_h=0.003,
@@ -69,12 +77,13 @@ IMU_GRADES: dict[str, ImuSpec] = {
                    gyro_bias_instability_deg_per_h=0.5, gyro_bias_tau_s=600.0, gyro_scale_ppm=50.0,
                    gyro_misalignment_arcsec=20.0, accel_vrw_mps_per_sqrt_h=0.02, accel_bias_ug=50.0,
                    accel_bias_instability_ug=20.0, accel_bias_tau_s=600.0, accel_scale_ppm=100.0,
-                   accel_misalignment_arcsec=20.0),
+                   accel_misalignment_arcsec=20.0, gyro_range_deg_per_s=500.0),
     "mems-tactical": ImuSpec(rate_hz=200.0, gyro_arw_deg_per_sqrt_h=0.15, gyro_bias_deg_per_h=5.0,
                              gyro_bias_instability_deg_per_h=2.0, gyro_bias_tau_s=300.0, gyro_scale_ppm=300.0,
                              gyro_misalignment_arcsec=100.0, accel_vrw_mps_per_sqrt_h=0.05,
                              accel_bias_ug=200.0, accel_bias_instability_ug=50.0, accel_bias_tau_s=300.0,
-                             accel_scale_ppm=300.0, accel_misalignment_arcsec=100.0),
+                             accel_scale_ppm=300.0, accel_misalignment_arcsec=100.0,
+                             gyro_range_deg_per_s=450.0, accel_range_mps2=78.4532),  # 8 g
 }
 
 
@@ -133,4 +142,6 @@ def simulate_imu(t_s: np.ndarray, gyro_true_radps: np.ndarray, accel_true_mps2: 
         white_root_psd=spec.accel_vrw_mps_per_sqrt_h / 60.0, scale_sigma=spec.accel_scale_ppm * 1e-6,
         misalignment_sigma_rad=spec.accel_misalignment_arcsec * ARCSEC, quantum=spec.accel_quantum_mps)
     drawn = {"gyro_radps": drawn_g, "accel_mps2": drawn_a, "spec": spec.model_dump()}
-    return ImuData(np.asarray(t_s, float), gyro, accel), drawn
+    gyro_range = spec.gyro_range_deg_per_s * DEG
+    return ImuData(np.asarray(t_s, float), np.clip(gyro, -gyro_range, gyro_range),
+                   np.clip(accel, -spec.accel_range_mps2, spec.accel_range_mps2)), drawn

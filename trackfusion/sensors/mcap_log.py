@@ -1026,6 +1026,20 @@ def read_log(path: str | Path, topics: Iterable[str] | None = None, allow_trunca
     return _read(Path(path), None if topics is None else set(topics), allow_truncated)[0]
 
 
+def read_log_with_damage(path: str | Path, topics: Iterable[str] | None = None, allow_truncated: bool = False
+                         ) -> tuple[SensorLog, dict[str, Any] | None]:
+    """:func:`read_log`, also saying what was lost when ``allow_truncated`` kept the readable part
+    of a damaged file: ``{"file", "byte", "reason", "records_readable": {topic: count}}`` (``byte``
+    -1 when unknown), or None for an intact file."""
+    if isinstance(topics, str):
+        topics = [topics]
+    log, scan = _read(Path(path), None if topics is None else set(topics), allow_truncated)
+    if scan.problem is None:
+        return log, None
+    return log, {"file": str(path), "byte": int(scan.problem.at), "reason": scan.problem.reason,
+                 "records_readable": {c.topic: int(c.count) for c in scan.channels.values() if c.count}}
+
+
 def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     """The sensor data of one channel; raises _Bad for its first invalid record (time or content)."""
     ns = np.concatenate(ch.times) if ch.times else np.zeros(0, np.uint64)

@@ -1,0 +1,234 @@
+"""Fault injection into raw logs: the data faults of real surveys, on demand (docs/robustness.md).
+
+Each injector takes a :class:`~trackfusion.sensors.types.SensorLog` and returns a *new* log
+with one fault added (the input's arrays are never modified), plus a JSON-able description of
+what was injected (the truth the detection is checked against). ``benchmarks/faults.py`` and
+the tests use them; :data:`INJECTORS` lists them by name with the strengths the benchmark
+runs (``strength`` is each injector's main keyword).
+
+Adding a fault later (e.g. a total station locked onto a wrong target, once prism fusion
+exists) takes one function of the same form, ``inject_x(log, *, strength, **options) ->
+(new_log, info)``, and one :data:`INJECTORS` entry; the benchmark picks it up.
+
+Times are on each sensor's own clock [s]; positions are displaced in the local ENU frame of
+each fix [m].
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+from typing import Any, Callable
+
+import numpy as np
+
+from .. import geodesy
+from ..errors import SimulationError
+from ..sensors import noise
+from ..sensors.types import GnssData, ImuData, OdometerData, SensorLog
+
+__all__ = ["inject_gnss_outliers", "inject_gnss_float", "inject_gnss_outage", "inject_odometer_slip",
+           "inject_odometer_gross_errors", "inject_clock_jump", "drop_static_start", "inject_imu_saturation",
+           "motion_start_s", "INJECTORS", "Injector"]
+
+
+def _copy(log: SensorLog) -> SensorLog:
+    """A deep copy (every array new)."""
+    return copy.deepcopy(log)
+
+
+def _need(data, name: str):
+    if data is None or data.t_s.size == 0:
+        raise SimulationError(f"fault injection: the log has no {name} data")
+    return data
+
+
+def _displace_fixes(g: GnssData, idx: np.ndarray, d_local_m: np.ndarray) -> GnssData:
+    """Fixes ``idx`` moved by ``d_local_m`` (len(idx), 3) [m] in their local ENU frames (exactly, via ECEF)."""
+    origin = geodesy.Origin(float(g.lat_deg[0]), float(g.lon_deg[0]), float(g.h_m[0]))
+    pos_n = geodesy.geodetic_to_n(g.lat_deg[idx], g.lon_deg[idx], g.h_m[idx], origin)
+    moved = pos_n + np.einsum("kij,kj->ki", geodesy.R_n_local(pos_n, origin), d_local_m)
+    lat, lon, h = geodesy.n_to_geodetic(moved, origin)
+    out = replace(g, lat_deg=g.lat_deg.copy(), lon_deg=g.lon_deg.copy(), h_m=g.h_m.copy())
+    out.lat_deg[idx], out.lon_deg[idx], out.h_m[idx] = lat, lon, h
+    return out
+
+
+def inject_gnss_outliers(log: SensorLog, *, strength: float = 0.05, min_m: float = 0.3, max_m: float = 3.0,
+                         seed: int = 0) -> tuple[SensorLog, dict]:
+    """Displace a fraction ``strength`` of the fixes by ``min_m``..``max_m`` (uniform) in a random
+    3-D direction, reported covariance unchanged (multipath)."""
+    g = _need(log.gnss, "GNSS")
+    rng = np.random.default_rng(seed)
+    n = int(round(strength * g.t_s.size))
+    idx = np.sort(rng.choice(g.t_s.size, size=n, replace=False))
+    u = rng.normal(size=(n, 3))
+    d = u / np.linalg.norm(u, axis=1, keepdims=True) * rng.uniform(min_m, max_m, n)[:, None]
+    out = _copy(log)
+    out.gnss = _displace_fixes(g, idx, d)
+    return out, {"fault": "gnss_outliers", "fraction": strength, "t_s": g.t_s[idx].tolist(),
+                 "displacement_m": np.linalg.norm(d, axis=1).tolist()}
+
+
+def inject_gnss_float(log: SensorLog, *, strength: float = 0.1, start_s: float | None = None,
+                      duration_s: float = 60.0, tau_s: float = 30.0, seed: int = 0) -> tuple[SensorLog, dict]:
+    """An RTK-float episode: fixes in [start_s, start_s + duration_s) get quality 5, a Gauss-Markov
+    error of ``strength`` [m] 1-sigma per horizontal axis (twice that vertically) with correlation
+    time ``tau_s``, and covariances inflated to match. ``start_s`` defaults to mid-run."""
+    g = _need(log.gnss, "GNSS")
+    start = float(np.median(g.t_s)) if start_s is None else start_s
+    idx = np.flatnonzero((g.t_s >= start) & (g.t_s < start + duration_s))
+    rng = np.random.default_rng(seed)
+    sigma = np.array([strength, strength, 2.0 * strength])
+    dt_s = float(np.median(np.diff(g.t_s)))
+    err = np.column_stack([noise.gauss_markov(idx.size, dt_s, s, tau_s, rng) for s in sigma])
+    out = _copy(log)
+    out.gnss = _displace_fixes(g, idx, err)
+    out.gnss.fix_quality = np.asarray(g.fix_quality).copy()
+    out.gnss.fix_quality[idx] = 5
+    out.gnss.cov_enu_m2 = g.cov_enu_m2.copy()
+    out.gnss.cov_enu_m2[idx] += np.diag(sigma**2)
+    return out, {"fault": "gnss_float", "start_s": start, "end_s": start + duration_s, "fixes": int(idx.size),
+                 "sigma_h_m": strength}
+
+
+def inject_gnss_outage(log: SensorLog, *, strength: float = 30.0, start_s: float | None = None
+                       ) -> tuple[SensorLog, dict]:
+    """Remove the fixes in [start_s, start_s + strength) [s] (``start_s`` default: mid-run)."""
+    g = _need(log.gnss, "GNSS")
+    start = float(np.median(g.t_s)) if start_s is None else start_s
+    keep = ~((g.t_s >= start) & (g.t_s < start + strength))
+    out = _copy(log)
+    out.gnss = GnssData(g.t_s[keep], g.lat_deg[keep], g.lon_deg[keep], g.h_m[keep], g.cov_enu_m2[keep],
+                        np.asarray(g.fix_quality)[keep])
+    return out, {"fault": "gnss_outage", "start_s": start, "duration_s": strength, "fixes_removed": int((~keep).sum())}
+
+
+def motion_start_s(log: SensorLog, threshold_m: float = 1e-3, from_end: bool = False) -> float:
+    """Time [s] the odometer first (``from_end``: last) reports more than ``threshold_m`` of travel
+    from its first (last) reading."""
+    o = _need(log.odometer, "odometer")
+    ref = o.distance_m[-1] if from_end else o.distance_m[0]
+    moved = np.flatnonzero(np.abs(o.distance_m - ref) > threshold_m)
+    if not moved.size:
+        raise SimulationError("fault injection: the odometer never moves")
+    return float(o.t_s[moved[-1] if from_end else moved[0]])
+
+
+def _moving_time(log: SensorLog, after_s: float) -> float:
+    """The time ``after_s`` [s] after the motion starts."""
+    return motion_start_s(log) + after_s
+
+
+def inject_odometer_slip(log: SensorLog, *, strength: float = 0.02, start_s: float | None = None,
+                         duration_s: float = 0.5) -> tuple[SensorLog, dict]:
+    """A wheel slip: ``strength`` [m] of extra reported distance (negative: lost) accrued evenly over
+    [start_s, start_s + duration_s) and kept afterwards (ticks follow). ``start_s`` default: 40 s
+    after the motion starts."""
+    o = _need(log.odometer, "odometer")
+    start = _moving_time(log, 40.0) if start_s is None else start_s
+    ramp = strength * np.clip((o.t_s - start) / duration_s, 0.0, 1.0)
+    ticks_per_m = _ticks_per_m(o)
+    out = _copy(log)
+    out.odometer = OdometerData(o.t_s.copy(), o.distance_m + ramp,
+                                o.ticks + np.round(ramp * ticks_per_m).astype(o.ticks.dtype))
+    return out, {"fault": "odometer_slip", "start_s": start, "end_s": start + duration_s, "extra_m": strength}
+
+
+def _ticks_per_m(o: OdometerData) -> float:
+    dd = np.diff(o.distance_m)
+    return float(np.diff(o.ticks.astype(float)) @ dd / max(dd @ dd, 1e-300))
+
+
+def inject_odometer_gross_errors(log: SensorLog, *, strength: float = 0.03, count: int = 10, seed: int = 0
+                                 ) -> tuple[SensorLog, dict]:
+    """``count`` isolated spikes of +-``strength`` [m] in the reported distance at random samples
+    (the ticks unchanged, as a glitch of the distance output)."""
+    o = _need(log.odometer, "odometer")
+    rng = np.random.default_rng(seed)
+    idx = np.sort(rng.choice(np.arange(20, o.t_s.size - 20), size=count, replace=False))
+    out = _copy(log)
+    out.odometer.distance_m[idx] += strength * rng.choice([-1.0, 1.0], size=count)
+    return out, {"fault": "odometer_gross_errors", "t_s": o.t_s[idx].tolist(), "magnitude_m": strength}
+
+
+def inject_clock_jump(log: SensorLog, *, strength: float = 0.3, topic: str = "/gnss", at_s: float | None = None
+                      ) -> tuple[SensorLog, dict]:
+    """Every time stamp of ``topic`` (``/gnss`` or ``/odometer``) from ``at_s`` on moves by
+    ``strength`` [s] (a clock step; the data are unchanged). ``at_s`` default: 60 s after the
+    motion starts (or mid-run without an odometer)."""
+    name = topic.strip("/")
+    data = _need(getattr(log, name, None), topic)
+    if at_s is None:
+        at_s = _moving_time(log, 60.0) if log.odometer is not None else float(np.median(data.t_s))
+    t = data.t_s.copy()
+    after = t >= at_s
+    t[after] += strength
+    if np.any(np.diff(t) <= 0):
+        raise SimulationError(f"fault injection: a clock jump of {strength} s at {at_s} s makes {topic} go backwards")
+    out = _copy(log)
+    setattr(out, name, replace(getattr(out, name), t_s=t))
+    return out, {"fault": "clock_jump", "topic": topic, "at_s": float(at_s), "step_s": strength}
+
+
+def drop_static_start(log: SensorLog, *, strength: float = 0.0, ends: tuple[str, ...] = ("start",)
+                      ) -> tuple[SensorLog, dict]:
+    """Cut every sensor's data before the motion starts (+ ``strength`` [s]) and, with ``"end"`` in
+    ``ends``, after it stops (- ``strength``): a run without a static period at that end (logging
+    began late or stopped early). Needs an odometer (to find the motion)."""
+    lo = motion_start_s(log) + strength if "start" in ends else -np.inf
+    hi = motion_start_s(log, from_end=True) - strength if "end" in ends else np.inf
+    out = _copy(log)
+    for name in ("imu", "odometer", "gnss", "inclinometer", "gauge"):
+        data = getattr(out, name)
+        if data is None:
+            continue
+        keep = (data.t_s >= lo) & (data.t_s <= hi)
+        fields = {k: (np.asarray(v)[keep] if isinstance(v, np.ndarray) and v.shape[:1] == keep.shape else v)
+                  for k, v in vars(data).items()}
+        setattr(out, name, type(data)(**fields))
+    return out, {"fault": "missing_static_period", "ends": list(ends),
+                 "kept_s": [float(v) if np.isfinite(v) else None for v in (lo, hi)]}
+
+
+def inject_imu_saturation(log: SensorLog, *, strength: float = 0.2, limit: float, axis: int = 2,
+                          field: str = "accel_mps2", start_s: float | None = None) -> tuple[SensorLog, dict]:
+    """An IMU axis pinned at ``limit`` (its range, in the field's unit) for ``strength`` [s] from
+    ``start_s`` (default mid-run): a saturation, which ``trackfusion run`` refuses."""
+    imu: ImuData = _need(log.imu, "IMU")
+    start = float(np.median(imu.t_s)) if start_s is None else start_s
+    sel = (imu.t_s >= start) & (imu.t_s < start + strength)
+    out = _copy(log)
+    getattr(out.imu, field)[sel, axis] = limit
+    return out, {"fault": "imu_saturation", "start_s": start, "samples": int(sel.sum()), "field": field, "axis": axis}
+
+
+@dataclass(frozen=True)
+class Injector:
+    """A fault of the benchmark: its injector, the strengths to run (unit in ``unit``), and the
+    ``faults`` entry of metrics.json that must report it."""
+
+    inject: Callable[..., tuple[SensorLog, dict[str, Any]]]
+    strengths: tuple[float, ...]
+    unit: str
+    detected_as: str
+
+
+#: the faults ``benchmarks/faults.py`` injects, by name
+INJECTORS: dict[str, Injector] = {
+    "gnss_outliers": Injector(inject_gnss_outliers, (0.02, 0.05, 0.10), "fraction of fixes", "gnss_outliers"),
+    "gnss_float": Injector(inject_gnss_float, (0.05, 0.2, 0.5), "m (1-sigma horizontal)", "gnss_float"),
+    "gnss_outage": Injector(inject_gnss_outage, (10.0, 30.0, 60.0), "s", "gnss_outages"),
+    "odometer_slip": Injector(inject_odometer_slip, (0.005, 0.02, 0.1), "m", "odometer_slips"),
+    "odometer_gross_errors": Injector(inject_odometer_gross_errors, (0.02, 0.05, 0.5), "m",
+                                      "odometer_gross_errors"),
+    "gnss_clock_jump": Injector(inject_clock_jump, (0.1, 0.3, 2.0), "s", "clock_jumps"),
+    "odometer_clock_jump": Injector(lambda log, *, strength: inject_clock_jump(log, strength=strength,
+                                                                              topic="/odometer"),
+                                    (0.005, 0.05, 0.5), "s", "clock_jumps"),
+    "missing_static_start": Injector(drop_static_start, (0.0,), "s after the motion starts",
+                                     "missing_static_period"),
+    "missing_static_both_ends": Injector(lambda log, *, strength: drop_static_start(log, strength=strength,
+                                                                                   ends=("start", "end")),
+                                         (0.0,), "s inside the motion", "missing_static_period"),
+}
