@@ -54,6 +54,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .report.html import write_report, write_report_pdf
+
+    print(f"wrote {write_report(args.run_dir, args.out)}")
+    if args.pdf:
+        print(f"wrote {write_report_pdf(args.run_dir)}")
+    return 0
+
+
 def _progress(message: str) -> None:
     """Progress lines go to stderr so stdout stays machine-readable."""
     print(message, file=sys.stderr, flush=True)
@@ -89,6 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--match", choices=["time", "chainage"], default="time",
                    help="match estimate and reference by time (default) or chainage")
     s.set_defaults(func=_cmd_evaluate)
+
+    s = sub.add_parser("report", help="write report.html of a run folder (and report.pdf with --pdf)")
+    s.add_argument("run_dir", help="output folder of 'trackfusion run'")
+    s.add_argument("--out", default=None, help="report file (default RUN_DIR/report.html)")
+    s.add_argument("--pdf", action="store_true", help="also print it to RUN_DIR/report.pdf (needs chromium)")
+    s.set_defaults(func=_cmd_report)
 
     s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end")
     s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

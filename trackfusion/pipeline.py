@@ -114,11 +114,13 @@ class SensorsConfig(_Strict):
 
 class OutputsConfig(_Strict):
     """``trajectory_rate_hz``: rows per second of trajectory.csv (at most the IMU rate; the
-    nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log."""
+    nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log;
+    ``report``: write report.html (docs/report.md)."""
 
     trajectory_rate_hz: float = Field(100.0, gt=0)
     geometry_step_m: float = Field(0.25, gt=0)
     fused_mcap: bool = True
+    report: bool = True
 
 
 class PipelineConfig(_Strict):
@@ -383,6 +385,11 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
         write_json_atomic(stage / "metrics.json", metrics)
         if cfg.outputs.fused_mcap:
             write_fused_mcap(stage / "fused.mcap", table, origin)
+        # --- issue 7: the report, from the staged files (keep it the last output written) ---
+        if cfg.outputs.report:
+            from .report.html import write_report
+            write_report(stage, stage / "report.html", shown_dir=out)
+        # --- end issue 7 ---
         files = sorted(p.name for p in stage.iterdir())
         out.mkdir(parents=True, exist_ok=True)
         for name in files:
