@@ -1,0 +1,123 @@
+"""report.html: sections present exactly when their data is, self-contained, and it really renders
+(headless Chromium screenshot)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from trackfusion.cli import main
+from trackfusion.pipeline import load_pipeline, run
+from trackfusion.report.chromium import find_chromium, screenshot
+from trackfusion.report.html import write_report
+from trackfusion.sensors.fileio import read_csv_table, write_csv_table
+from trackfusion.simulation.scenarios import simulate_to_dir
+
+SHORT = ["motion.passes=1",
+         "motion.segments=[{hold_s: 30}, {move_to_m: 200, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
+         " {move_to_m: 40, speed_mps: 3, accel_mps2: 0.4}]"]
+BASE_SECTIONS = {"summary", "trajectory", "sigmas", "relative-accuracy", "rejected"}
+CONTRACT_SECTIONS = {"geometry", "time-sync", "registration", "faults"}
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("report")
+    simulate_to_dir("open-track-gnss", d, seed=1, ideal=False, overrides=SHORT)
+    run(load_pipeline(d / "pipeline.yaml"), d / "out")
+    return d
+
+
+def _sections(text: str) -> set[str]:
+    return set(re.findall(r"<section id='([^']+)'>", text))
+
+
+def _add_contract_outputs(src, dst):
+    """A copy of a run folder with what issues 5, 6 and 8 add: geometry.csv (columns of the
+    helper brief, built from the simulator's rail truth) and metrics geometry / time_sync /
+    registration / rejected_prism / faults."""
+    shutil.copytree(src, dst)
+    truth = read_csv_table(src.parent / "geometry_truth.csv")
+    cols = {c: truth[c] for c in ("chainage_m", "left_e_m", "left_n_m", "left_u_m", "right_e_m", "right_n_m",
+                                  "right_u_m", "gauge_m")}
+    cols["cross_level_mm"] = (truth["left_u_m"] - truth["right_u_m"]) * 1e3
+    cols["twist_3m_mm"] = np.r_[np.zeros(12), cols["cross_level_mm"][12:] - cols["cross_level_mm"][:-12]]
+    for rail in ("left", "right"):
+        for d in ("vertical", "lateral"):
+            cols[f"{rail}_{d}_mm"] = truth[f"irr_{d}_{rail}"] * 1e3
+            cols[f"{rail}_{d}_versine_10m_mm"] = 0.5 * cols[f"{rail}_{d}_mm"]
+    write_csv_table(dst / "geometry.csv", cols, {c: ("m" if c.endswith("_m") else "mm") for c in cols}, "n",
+                    {"lat_deg": 42.86, "lon_deg": 90.17, "h_m": 60.0})
+    m = json.loads((dst / "metrics.json").read_text())
+    m["geometry"] = {"step_m": 0.25, "length_m": 180.0, "exceedances": [
+        {"check": "left_vertical_mm", "chainage_m": 77.25, "value_mm": 4.321, "limit_mm": 2.0}]}
+    lags = np.linspace(-2, 2, 81)
+    m["time_sync"] = {"TS1": {"offset_s": 0.35, "r_max": 0.998, "lags_s": lags.tolist(),
+                              "r": np.exp(-(lags - 0.35) ** 2).tolist()}}
+    stats = {"max_abs_mm": 1.2, "mean_mm": 0.1, "std_mm": 0.4, "slope_mm_per_m": 0.001}
+    m["registration"] = {"method": "overlap", "stations": {"TS1": {"e_m": 1.0}, "TS2": {"e_m": 2.0}},
+                         "residuals": {"before": {"lateral": stats}, "after": {"lateral": stats}}}
+    m["rejected_prism"] = [{"station": "TS2", "t_s": 812.5, "reason": "prism hand-over gap"}]
+    m["faults"] = {"gnss_outage": {"start_s": 100.0, "end_s": 160.0}}
+    (dst / "metrics.json").write_text(json.dumps(m))
+
+
+@pytest.fixture(scope="module")
+def full_dir(run_dir, tmp_path_factory):
+    d = tmp_path_factory.mktemp("full") / "out"
+    _add_contract_outputs(run_dir / "out", d)
+    write_report(d)
+    return d
+
+
+def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
+    text = (run_dir / "out" / "report.html").read_text()
+    assert _sections(text) == BASE_SECTIONS
+    assert "0.67 mm" in text and "0.16 mm" in text and ("MEETS" in text)
+    assert str((run_dir / "out").resolve()) in text  # the output folder, not the staging folder
+    assert ".out-" not in text
+
+
+def test_contract_sections_render_when_their_data_is_present(full_dir):
+    text = (full_dir / "report.html").read_text()
+    assert _sections(text) == BASE_SECTIONS | CONTRACT_SECTIONS
+    assert "77.25" in text and "4.321" in text  # the exceedance row
+    assert "prism hand-over gap" in text and "gnss_outage" in text and "slope_mm_per_m" in text
+    assert text.count("data:image/png;base64,") == 7  # plan, sigmas, accuracy, 3 geometry, time sync
+
+
+def test_report_is_self_contained(full_dir):
+    text = (full_dir / "report.html").read_text()
+    assert "<script" not in text and "<link" not in text and "url(" not in text
+    assert not re.search(r"(src|href)='(?!data:|#)", text)
+    assert "http://" not in text and "https://" not in text
+
+
+def test_report_command_refuses_a_folder_without_run_files(tmp_path, capsys):
+    assert main(["report", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "metrics.json" in err[0]
+
+
+@pytest.mark.skipif(find_chromium() is None, reason="chromium not installed (apt-get install chromium; "
+                                                     ".ci/run installs it)")
+def test_report_renders_in_headless_chromium(full_dir, tmp_path):
+    from matplotlib.image import imread
+
+    png = tmp_path / "shot.png"
+    screenshot(full_dir / "report.html", png, width_px=1200, height_px=4000)
+    rgb = (imread(png)[..., :3] * 255).round().astype(int)
+    assert rgb.shape == (4000, 1200, 3)
+    ink = np.any(rgb < 200, axis=2).mean()
+    assert ink > 0.02, f"screenshot nearly blank ({ink:.3%} ink)"
+    top = rgb[:400]
+    # the verdict banner's background (#dafbe1 pass / #ffebe9 fail) is drawn near the top
+    banner = np.all(np.abs(top - [218, 251, 225]) <= 2, axis=2) | np.all(np.abs(top - [255, 235, 233]) <= 2, axis=2)
+    assert banner.sum() > 5000
+    # the embedded figures rendered: matplotlib's C0 blue (#1f77b4) lines are on the page
+    blue = np.all(np.abs(rgb - [31, 119, 180]) <= 12, axis=2).sum()
+    assert blue > 2000
