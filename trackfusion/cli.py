@@ -50,7 +50,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    run_demo(args.out, progress=_progress)
+    run_demo(args.out, progress=_progress, seed=args.seed, overrides=args.set or [])
     return 0
 
 
@@ -107,6 +107,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end")
     s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    s.add_argument("--seed", type=int, default=0, help="random seed of the simulated survey (default 0)")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario parameter (as in 'simulate'), e.g. a shorter survey")
     s.set_defaults(func=_cmd_demo)
     return p
 

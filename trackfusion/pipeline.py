@@ -366,15 +366,17 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     timings["total_s"] = time.perf_counter() - wall
     metrics["timings_s"] = timings
     metrics["run_time_s"] = timings["total_s"]
-    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every)
+    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every,
+                          raw_log=pipeline.path(cfg.inputs.log))
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     return RunResult(out, files, metrics, table, res)
 
 
 def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
-                  cfg: PipelineConfig, dense: DenseTrajectory, every: int) -> list[str]:
-    """Write every output into a staging folder beside ``out``, then move each file in."""
-    from .sensors.fileio import write_csv_table, write_json_atomic
+                  cfg: PipelineConfig, dense: DenseTrajectory, every: int, raw_log: Path | None = None) -> list[str]:
+    """Write every output into a staging folder beside ``out``, then move each file in
+    (``raw_log``: the input log, whose topics fused.mcap carries)."""
+    from .sensors.fileio import read_csv_table, write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
@@ -383,9 +385,11 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
                         extra={"description": "smoothed trajectory of the IMU origin",
                                "config": cfg.model_dump(mode="json")})
         write_json_atomic(stage / "metrics.json", metrics)
+        # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
         if cfg.outputs.fused_mcap:
-            write_fused_mcap(stage / "fused.mcap", table, origin)
-        # --- issue 7: the report, from the staged files (keep it the last output written) ---
+            geometry = read_csv_table(stage / "geometry.csv") if (stage / "geometry.csv").is_file() else None
+            write_fused_mcap(stage / "fused.mcap", table, origin, raw_log=raw_log, geometry=geometry,
+                             allow_truncated=cfg.inputs.allow_truncated)
         if cfg.outputs.report:
             from .report.html import write_report
             write_report(stage, stage / "report.html", shown_dir=out)

@@ -1,5 +1,6 @@
-"""report.html: sections present exactly when their data is, self-contained, and it really renders
-(headless Chromium screenshot)."""
+"""Run outputs for the user: report.html (sections present exactly when their data is,
+self-contained, really renders in headless Chromium) and fused.mcap (Foxglove topics, rails,
+raw inputs copied)."""
 
 from __future__ import annotations
 
@@ -121,3 +122,62 @@ def test_report_renders_in_headless_chromium(full_dir, tmp_path):
     # the embedded figures rendered: matplotlib's C0 blue (#1f77b4) lines are on the page
     blue = np.all(np.abs(rgb - [31, 119, 180]) <= 12, axis=2).sum()
     assert blue > 2000
+
+
+def _messages(path, topics=None) -> dict[str, list]:
+    from mcap.reader import make_reader
+
+    out: dict[str, list] = {}
+    with open(path, "rb") as fh:
+        for schema, channel, msg in make_reader(fh).iter_messages(topics=topics, log_time_order=True):
+            out.setdefault(channel.topic, []).append((schema.name, channel.message_encoding, msg.log_time, msg.data))
+    return out
+
+
+def test_fused_mcap_holds_the_trajectory_and_copies_the_raw_topics(run_dir):
+    fused = _messages(run_dir / "out" / "fused.mcap")
+    raw = _messages(run_dir / "log.mcap")
+    for topic, msgs in raw.items():
+        assert fused[topic] == msgs, topic  # schema, encoding, log_time and bytes identical
+    assert set(fused) == set(raw) | {"/trajectory/pose", "/trajectory/fix", "/trajectory/path"}
+    poses, fixes = fused["/trajectory/pose"], fused["/trajectory/fix"]
+    assert {p[:2] for p in poses} == {("foxglove.PoseInFrame", "json")}
+    assert {f[:2] for f in fixes} == {("foxglove.LocationFix", "json")}
+    traj = read_csv_table(run_dir / "out" / "trajectory.csv")
+    assert len(poses) == pytest.approx((traj["t_s"][-1] - traj["t_s"][0]) * 10, abs=2)  # 10 Hz
+    p = json.loads(poses[5][3])
+    i = int(np.argmin(np.abs(traj["t_s"] - poses[5][2] / 1e9)))
+    assert p["frame_id"] == "n" and p["pose"]["position"]["x"] == pytest.approx(traj["e_m"][i], abs=1e-9)
+    q = p["pose"]["orientation"]
+    assert q["w"] == pytest.approx(traj["qw"][i]) and np.isclose(sum(v * v for v in q.values()), 1.0)
+    f = json.loads(fixes[5][3])
+    assert f["position_covariance_type"] == 2 and len(f["position_covariance"]) == 9
+    assert f["position_covariance"][8] == pytest.approx(traj["sigma_u_m"][i] ** 2)
+    assert abs(f["latitude"] - 42.86) < 0.01 and abs(f["longitude"] - 90.17) < 0.01
+    scene = json.loads(fused["/trajectory/path"][0][3])
+    line = scene["entities"][0]["lines"][0]
+    assert scene["entities"][0]["frame_id"] == "n" and line["type"] == 0 and len(line["points"]) > 1000
+
+
+def test_fused_mcap_draws_the_rails_of_geometry_csv(run_dir, full_dir, tmp_path):
+    from trackfusion.geodesy import Origin
+    from trackfusion.sensors.fused import write_fused_mcap
+
+    traj = read_csv_table(run_dir / "out" / "trajectory.csv")
+    geometry = read_csv_table(full_dir / "geometry.csv")
+    write_fused_mcap(tmp_path / "f.mcap", traj, Origin(42.86, 90.17, 60.0), geometry=geometry)
+    msgs = _messages(tmp_path / "f.mcap")
+    assert set(msgs) == {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
+                         "/track/rails_geojson"}
+    (name, enc, t_ns, data), = msgs["/track/rails"]
+    assert name == "foxglove.SceneUpdate" and t_ns == msgs["/trajectory/pose"][0][2]
+    left, right = json.loads(data)["entities"][0]["lines"]
+    assert len(left["points"]) == geometry["chainage_m"].size
+    assert left["points"][7] == {"x": geometry["left_e_m"][7], "y": geometry["left_n_m"][7],
+                                 "z": geometry["left_u_m"][7]}
+    assert right["points"][-1]["y"] == geometry["right_n_m"][-1]
+    (name, _, _, data), = msgs["/track/rails_geojson"]
+    fc = json.loads(json.loads(data)["geojson"])
+    assert name == "foxglove.GeoJSON" and [f["geometry"]["type"] for f in fc["features"]] == ["LineString"] * 2
+    lon, lat, _ = fc["features"][0]["geometry"]["coordinates"][0]
+    assert abs(lat - 42.86) < 0.01 and abs(lon - 90.17) < 0.01
