@@ -54,6 +54,23 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .sensors.importers import import_to_mcap
+    from .sensors.mcap_log import inspect_log
+
+    import_to_mcap(args.mapping, args.out)
+    print(inspect_log(args.out).format())
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .sensors.importers import export_csv
+
+    files = export_csv(args.log, args.out)
+    print(f"wrote {', '.join(files)} to {args.out}/")
+    return 0
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report.html import write_report, write_report_pdf
 
@@ -85,6 +102,16 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("inspect", help="summarise a raw MCAP log")
     s.add_argument("log")
     s.set_defaults(func=_cmd_inspect)
+
+    s = sub.add_parser("import", help="import CSV/text sensor files into an MCAP raw log (docs/import.md)")
+    s.add_argument("mapping", help="mapping YAML: files, columns, units (paths relative to it)")
+    s.add_argument("--out", required=True, help="MCAP log to write")
+    s.set_defaults(func=_cmd_import)
+
+    s = sub.add_parser("export", help="export an MCAP raw log as CSV files and an import mapping")
+    s.add_argument("log")
+    s.add_argument("--out", required=True, help="output folder")
+    s.set_defaults(func=_cmd_export)
 
     s = sub.add_parser("run", help="process a survey with a pipeline YAML")
     s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")
