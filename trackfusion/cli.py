@@ -71,6 +71,18 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import run_batch
+    from .sensors.fileio import write_json_atomic
+
+    result = run_batch(args.pipelines, engine=args.engine, address=args.address, workers=args.workers,
+                       out_root=args.out_root, progress=_progress)
+    print(result.format_table())
+    if args.json:
+        write_json_atomic(args.json, result.to_json())
+    return result.exit_code
+
+
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report.html import write_report, write_report_pdf
 
@@ -117,6 +129,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")
     s.add_argument("--out", default=None, help="output folder (default: out/ beside the YAML)")
     s.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("batch", help="run many pipelines in parallel (docs/batch.md); exit 3 if any failed")
+    s.add_argument("pipelines", nargs="+", metavar="PIPELINE.yaml")
+    s.add_argument("--engine", choices=["local", "dask"], default="local",
+                   help="local process pool (default) or a Dask cluster")
+    s.add_argument("--address", default=None, help="Dask scheduler address (default: a LocalCluster)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="worker processes (local: default CPU count; LocalCluster: default 2)")
+    s.add_argument("--out-root", default=None, help="write survey X.yaml to OUT_ROOT/X/ (default out/ beside it)")
+    s.add_argument("--json", default=None, help="write the batch summary as JSON to this file")
+    s.set_defaults(func=_cmd_batch)
 
     s = sub.add_parser("evaluate", help="relative accuracy of a trajectory against a reference")
     s.add_argument("estimate")
