@@ -360,12 +360,14 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                "trajectory_rate_hz": float(imu_rate / every),
                                **_smoother_metrics(res, info)}
     if cfg.inputs.reference is not None:
+        say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
         from .evaluation.reference import compare_with_reference
         metrics.update(compare_with_reference(table, pipeline.path(cfg.inputs.reference), problem.origin.to_dict()))
     timings["output_s"] = time.perf_counter() - tic
     timings["total_s"] = time.perf_counter() - wall
     metrics["timings_s"] = timings
     metrics["run_time_s"] = timings["total_s"]
+    say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
     files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every,
                           raw_log=pipeline.path(cfg.inputs.log))
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
