@@ -1,9 +1,11 @@
-"""Run outputs for the user: report.html (sections present exactly when their data is,
+"""What the user sees: the demo (progress, closing verdict), report.html (sections present exactly when their data is,
 self-contained, really renders in headless Chromium) and fused.mcap (Foxglove topics, rails,
 raw inputs copied)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -13,11 +15,10 @@ import numpy as np
 import pytest
 
 from trackfusion.cli import main
-from trackfusion.pipeline import load_pipeline, run
+from trackfusion.demo import run_demo
 from trackfusion.report.chromium import find_chromium, screenshot
 from trackfusion.report.html import write_report
 from trackfusion.sensors.fileio import read_csv_table, write_csv_table
-from trackfusion.simulation.scenarios import simulate_to_dir
 
 SHORT = ["motion.passes=1",
          "motion.segments=[{hold_s: 30}, {move_to_m: 200, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
@@ -27,11 +28,35 @@ CONTRACT_SECTIONS = {"geometry", "time-sync", "registration", "faults"}
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("report")
-    simulate_to_dir("open-track-gnss", d, seed=1, ideal=False, overrides=SHORT)
-    run(load_pipeline(d / "pipeline.yaml"), d / "out")
-    return d
+def demo(tmp_path_factory):
+    """``trackfusion demo`` on a short survey: (folder, stdout, progress lines, its verdict)."""
+    d = tmp_path_factory.mktemp("demo")
+    said: list[str] = []
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:
+        passed = run_demo(d, progress=said.append, seed=1, overrides=SHORT)
+    return d, stdout.getvalue(), said, passed
+
+
+@pytest.fixture(scope="module")
+def run_dir(demo):
+    return demo[0]
+
+
+def test_demo_shows_progress_and_closes_with_the_verdict_and_where_results_are(demo):
+    d, stdout, said, passed = demo
+    for step in ("step 1/3: simulating", "step 2/3: checking the raw log", "step 3/3: fusing"):
+        assert any(step in line for line in said), step
+    assert any(line.startswith("solving:") for line in said) and any("writing the outputs" in x for x in said)
+    metrics = json.loads((d / "out" / "metrics.json").read_text())
+    verdict = "MEETS" if metrics["evaluation"]["passed"] else "DOES NOT MEET"
+    assert passed == metrics["evaluation"]["passed"]
+    tail = stdout.strip().splitlines()[-6:]
+    assert tail[0].startswith(f"demo: the survey {verdict} the seed-002 thresholds at 5 m (MSE <= 0.67 mm, "
+                              "ADEV <= 0.16 mm, vertical and lateral)")
+    ra = metrics["relative_accuracy"]["vertical"]
+    assert f"vertical  MSE {ra['mse_at_threshold_mm']:.3f} mm, ADEV {ra['adev_at_threshold_mm']:.3f} mm" in tail[1]
+    assert tail[3] == f"demo: open the report: {(d / 'out' / 'report.html').resolve()}"
+    assert f"results are in {(d / 'out').resolve()}/" in tail[4]
 
 
 def _sections(text: str) -> set[str]:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 import re
 from dataclasses import dataclass
@@ -24,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import SensorDataError
-from ..sensors.fileio import atomic_path, read_csv_table, read_sidecar, write_text_atomic
+from ..sensors.fileio import atomic_path, read_csv_table, read_json, read_sidecar, write_text_atomic
 from . import figures
 
 IRREGULARITY_COLUMNS = ("left_vertical_mm", "right_vertical_mm", "left_lateral_mm", "right_lateral_mm")
@@ -52,13 +51,7 @@ def load_run(run_dir: str | Path) -> RunFiles:
     d = Path(run_dir)
     if not d.is_dir():
         raise SensorDataError(f"{d}: run folder not found")
-    mp = d / "metrics.json"
-    try:
-        metrics = json.loads(mp.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SensorDataError(f"{mp}: not found (is {d} the output folder of 'trackfusion run'?)") from None
-    except json.JSONDecodeError as exc:
-        raise SensorDataError(f"{mp}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
+    metrics = read_json(d / "metrics.json", f"not found (is {d} the output folder of 'trackfusion run'?)")
     traj = read_csv_table(d / "trajectory.csv", required=("t_s", "e_m", "n_m", "u_m", "chainage_m",
                                                           "sigma_e_m", "sigma_n_m", "sigma_u_m"))
     geometry = geometry_meta = None

@@ -17,17 +17,16 @@ metadata as JSON and an ``import.yaml`` that imports them again to the same log 
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
-from typing import Any, Literal, Union
+from typing import Any, Union
 
 import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import ConfigError, SensorDataError, config_error_from_validation
-from .fileio import write_json_atomic, write_text_atomic
+from .fileio import read_json, write_json_atomic, write_text_atomic
 from .mcap_log import read_log, write_log
 from .types import GaugeData, GnssData, ImuData, InclinometerData, OdometerData, SensorLog, TotalStationData
 
@@ -355,13 +354,7 @@ def import_log(mapping_path: str | Path) -> SensorLog:
     m, base = load_mapping(mapping_path)
     log = SensorLog()
     if m.metadata is not None:
-        mp = base / m.metadata
-        try:
-            log.metadata = json.loads(mp.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise SensorDataError(f"{mp}: file not found") from None
-        except json.JSONDecodeError as exc:
-            raise SensorDataError(f"{mp}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
+        log.metadata = read_json(base / m.metadata)
     if m.survey is not None:
         log.metadata["survey"] = {**log.metadata.get("survey", {}), **m.survey}
     if m.imu is not None:
