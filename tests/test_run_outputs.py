@@ -21,7 +21,7 @@ from trackfusion.report.html import write_report
 from trackfusion.sensors.fileio import read_csv_table, write_csv_table
 
 SHORT = ["motion.passes=1",
-         "motion.segments=[{hold_s: 30}, {move_to_m: 200, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
+         "motion.segments=[{hold_s: 20}, {move_to_m: 130, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 5},"
          " {move_to_m: 40, speed_mps: 3, accel_mps2: 0.4}]"]
 BASE_SECTIONS = {"summary", "trajectory", "sigmas", "relative-accuracy", "rejected"}
 CONTRACT_SECTIONS = {"geometry", "time-sync", "registration", "faults"}
@@ -104,7 +104,9 @@ def full_dir(run_dir, tmp_path_factory):
 def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
     text = (run_dir / "out" / "report.html").read_text()
     assert _sections(text) == BASE_SECTIONS
-    assert "0.67 mm" in text and "0.16 mm" in text and ("MEETS" in text)
+    passed = json.loads((run_dir / "out" / "metrics.json").read_text())["evaluation"]["passed"]
+    verdict = f"<p class='verdict {'pass' if passed else 'fail'}'>The survey {'MEETS' if passed else 'DOES NOT MEET'}"
+    assert verdict + " the thresholds at 5 m (MSE &le; 0.67 mm, ADEV &le; 0.16 mm, vertical and lateral)" in text
     assert str((run_dir / "out").resolve()) in text  # the output folder, not the staging folder
     assert ".out-" not in text
 
