@@ -67,8 +67,8 @@ def test_ideal_chainage_and_scale(ideal_run):
 def test_output_files_follow_the_contract(ideal_run):
     d, result = ideal_run
     out = d / "out"
-    assert sorted(result.files) == ["fused.mcap", "geometry.csv", "geometry.json", "metrics.json", "trajectory.csv",
-                                   "trajectory.json"]
+    assert sorted(result.files) == ["fused.mcap", "geometry.csv", "geometry.json", "metrics.json", "report.html",
+                                   "trajectory.csv", "trajectory.json"]
     header = (out / "trajectory.csv").read_text().splitlines()[0].split(",")
     assert header == list(TRAJECTORY_UNITS)
     side = json.loads((out / "trajectory.json").read_text())

@@ -50,7 +50,45 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
-    run_demo(args.out, progress=_progress)
+    run_demo(args.out, progress=_progress, seed=args.seed, overrides=args.set or [])
+    return 0
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    from .sensors.importers import import_to_mcap
+    from .sensors.mcap_log import inspect_log
+
+    import_to_mcap(args.mapping, args.out)
+    print(inspect_log(args.out).format())
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .sensors.importers import export_csv
+
+    files = export_csv(args.log, args.out)
+    print(f"wrote {', '.join(files)} to {args.out}/")
+    return 0
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .batch import run_batch
+    from .sensors.fileio import write_json_atomic
+
+    result = run_batch(args.pipelines, engine=args.engine, address=args.address, workers=args.workers,
+                       out_root=args.out_root, progress=_progress)
+    print(result.format_table())
+    if args.json:
+        write_json_atomic(args.json, result.to_json())
+    return result.exit_code
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from .report.html import write_report, write_report_pdf
+
+    print(f"wrote {write_report(args.run_dir, args.out)}")
+    if args.pdf:
+        print(f"wrote {write_report_pdf(args.run_dir)}")
     return 0
 
 
@@ -77,10 +115,31 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("log")
     s.set_defaults(func=_cmd_inspect)
 
+    s = sub.add_parser("import", help="import CSV/text sensor files into an MCAP raw log (docs/import.md)")
+    s.add_argument("mapping", help="mapping YAML: files, columns, units (paths relative to it)")
+    s.add_argument("--out", required=True, help="MCAP log to write")
+    s.set_defaults(func=_cmd_import)
+
+    s = sub.add_parser("export", help="export an MCAP raw log as CSV files and an import mapping")
+    s.add_argument("log")
+    s.add_argument("--out", required=True, help="output folder")
+    s.set_defaults(func=_cmd_export)
+
     s = sub.add_parser("run", help="process a survey with a pipeline YAML")
     s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")
     s.add_argument("--out", default=None, help="output folder (default: out/ beside the YAML)")
     s.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("batch", help="run many pipelines in parallel (docs/batch.md); exit 3 if any failed")
+    s.add_argument("pipelines", nargs="+", metavar="PIPELINE.yaml")
+    s.add_argument("--engine", choices=["local", "dask"], default="local",
+                   help="local process pool (default) or a Dask cluster")
+    s.add_argument("--address", default=None, help="Dask scheduler address (default: a LocalCluster)")
+    s.add_argument("--workers", type=int, default=None,
+                   help="worker processes (local: default CPU count; LocalCluster: default 2)")
+    s.add_argument("--out-root", default=None, help="write survey X.yaml to OUT_ROOT/X/ (default out/ beside it)")
+    s.add_argument("--json", default=None, help="write the batch summary as JSON to this file")
+    s.set_defaults(func=_cmd_batch)
 
     s = sub.add_parser("evaluate", help="relative accuracy of a trajectory against a reference")
     s.add_argument("estimate")
@@ -90,8 +149,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="match estimate and reference by time (default) or chainage")
     s.set_defaults(func=_cmd_evaluate)
 
+    s = sub.add_parser("report", help="write report.html of a run folder (and report.pdf with --pdf)")
+    s.add_argument("run_dir", help="output folder of 'trackfusion run'")
+    s.add_argument("--out", default=None, help="report file (default RUN_DIR/report.html)")
+    s.add_argument("--pdf", action="store_true", help="also print it to RUN_DIR/report.pdf (needs chromium)")
+    s.set_defaults(func=_cmd_report)
+
     s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end")
     s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    s.add_argument("--seed", type=int, default=0, help="random seed of the simulated survey (default 0)")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a scenario parameter (as in 'simulate'), e.g. a shorter survey")
     s.set_defaults(func=_cmd_demo)
     return p
 

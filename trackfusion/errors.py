@@ -51,3 +51,7 @@ def config_error_from_validation(exc, source: str) -> ConfigError:
     err = exc.errors()[0]
     path = ".".join(str(p) if str(p).isprintable() else repr(p) for p in err["loc"]) or "(top level)"
     return ConfigError(f"{source}: {path}: {' '.join(str(err['msg']).split())}")
+
+
+class ReportError(TrackfusionError):
+    """The report cannot be written (missing run files, no browser for the PDF, ...)."""

@@ -117,11 +117,13 @@ class SensorsConfig(_Strict):
 
 class OutputsConfig(_Strict):
     """``trajectory_rate_hz``: rows per second of trajectory.csv (at most the IMU rate; the
-    nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log."""
+    nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log;
+    ``report``: write report.html (docs/report.md)."""
 
     trajectory_rate_hz: float = Field(100.0, gt=0)
     geometry_step_m: float = Field(0.25, gt=0)
     fused_mcap: bool = True
+    report: bool = True
 
 
 class PipelineConfig(_Strict):
@@ -398,21 +400,26 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
     # --- end track geometry ---
     if cfg.inputs.reference is not None:
+        say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
         from .evaluation.reference import compare_with_reference
         metrics.update(compare_with_reference(table, pipeline.path(cfg.inputs.reference), problem.origin.to_dict()))
     timings["output_s"] = time.perf_counter() - tic
     timings["total_s"] = time.perf_counter() - wall
     metrics["timings_s"] = timings
     metrics["run_time_s"] = timings["total_s"]
-    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every, geometry)
+    say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
+    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every, geometry,
+                          raw_log=pipeline.path(cfg.inputs.log))
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     return RunResult(out, files, metrics, table, res)
 
 
 def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
-                  cfg: PipelineConfig, dense: DenseTrajectory, every: int, geometry=None) -> list[str]:
-    """Write every output into a staging folder beside ``out``, then move each file in."""
-    from .sensors.fileio import write_csv_table, write_json_atomic
+                  cfg: PipelineConfig, dense: DenseTrajectory, every: int, geometry=None,
+                  raw_log: Path | None = None) -> list[str]:
+    """Write every output into a staging folder beside ``out``, then move each file in
+    (``raw_log``: the input log, whose topics fused.mcap carries)."""
+    from .sensors.fileio import read_csv_table, write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
@@ -424,8 +431,15 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
         if geometry is not None:  # issue 6: geometry.csv + geometry.json
             write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
                             fmt="%.12g", extra=geometry.sidecar())
+        # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
         if cfg.outputs.fused_mcap:
-            write_fused_mcap(stage / "fused.mcap", table, origin)
+            rails = read_csv_table(stage / "geometry.csv") if geometry is not None else None
+            write_fused_mcap(stage / "fused.mcap", table, origin, raw_log=raw_log, geometry=rails,
+                             allow_truncated=cfg.inputs.allow_truncated)
+        if cfg.outputs.report:
+            from .report.html import write_report
+            write_report(stage, stage / "report.html", shown_dir=out)
+        # --- end issue 7 ---
         files = sorted(p.name for p in stage.iterdir())
         out.mkdir(parents=True, exist_ok=True)
         for name in files:

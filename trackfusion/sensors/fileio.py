@@ -111,12 +111,18 @@ def read_csv_table(path: str | os.PathLike, required: list[str] | tuple[str, ...
     return table
 
 
-def read_sidecar(csv_path: str | os.PathLike) -> dict:
-    """Read the JSON sidecar of a CSV table; raises :class:`SensorDataError` naming the file."""
-    p = sidecar_path(csv_path)
+def read_json(path: str | os.PathLike, what: str = "file"):
+    """Read a JSON file; raises :class:`SensorDataError` naming it (``{path}: {what} not found``
+    or ``invalid JSON``)."""
+    p = Path(path)
     try:
         return json.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise SensorDataError(f"{p}: sidecar not found") from None
+        raise SensorDataError(f"{p}: {what} not found") from None
     except json.JSONDecodeError as exc:
         raise SensorDataError(f"{p}: invalid JSON ({exc.msg} at line {exc.lineno})") from None
+
+
+def read_sidecar(csv_path: str | os.PathLike) -> dict:
+    """Read the JSON sidecar of a CSV table; raises :class:`SensorDataError` naming the file."""
+    return read_json(sidecar_path(csv_path), "sidecar")

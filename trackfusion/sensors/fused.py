@@ -1,10 +1,20 @@
-"""``fused.mcap``: the smoothed trajectory as Foxglove messages (JSON encoding).
+"""``fused.mcap``: the survey for Foxglove — smoothed trajectory, rail traces and the raw inputs.
 
-Topics: ``/trajectory/pose`` (``foxglove.PoseInFrame``, position of the IMU origin in the
-frame ``n``, orientation ``R_nb`` as a quaternion) and ``/trajectory/fix``
-(``foxglove.LocationFix``, WGS-84 latitude, longitude, ellipsoidal height and the diagonal
-position covariance in ENU), at most ``max_rate_hz``. Written atomically and
-deterministically (no wall-clock time in the file).
+Topics (JSON encoding, Foxglove schema names; frame ``n`` is ENU at the survey origin):
+
+- ``/trajectory/pose`` ``foxglove.PoseInFrame``: position of the IMU origin in ``n`` and the
+  orientation ``R_nb`` as a quaternion, at most ``max_rate_hz``;
+- ``/trajectory/fix`` ``foxglove.LocationFix``: WGS-84 latitude, longitude, ellipsoidal height
+  and the diagonal ENU position covariance (type 2, diagonal known), same times (Map panel);
+- ``/trajectory/path`` ``foxglove.SceneUpdate``: the whole trajectory as one line (3-D panel);
+- with geometry (``geometry.csv`` columns): ``/track/rails`` ``foxglove.SceneUpdate`` with the
+  left (red) and right (blue) rail as lines in ``n``, and ``/track/rails_geojson``
+  ``foxglove.GeoJSON``: both rails as WGS-84 LineStrings (Map panel);
+- the raw log's topics (``/imu``, ``/odometer``, ``/gnss``, ``/total_station/<id>``, ...) copied
+  with their schemas and ``log_time`` (docs/log_format.md), and its metadata.
+
+The scene and GeoJSON messages are stamped at the trajectory's first time and never expire.
+Written atomically and deterministically (no wall-clock time in the file).
 """
 
 from __future__ import annotations
@@ -13,65 +23,170 @@ import json
 from pathlib import Path
 
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 from .. import geodesy
-from .fileio import atomic_path
+from .mcap_log import ExtraChannel, read_log, write_log
+from .types import SensorLog
 
-_POSE_SCHEMA = {
-    "title": "foxglove.PoseInFrame", "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
-        "frame_id": {"type": "string"},
-        "pose": {"type": "object", "properties": {
-            "position": {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}},
-            "orientation": {"type": "object", "properties": {a: {"type": "number"} for a in "xyzw"}}}},
-    },
-}
-_FIX_SCHEMA = {
-    "title": "foxglove.LocationFix", "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
-        "frame_id": {"type": "string"},
+#: Most points per drawn line (traces are decimated evenly to this).
+MAX_LINE_POINTS = 50000
+
+_TIME = {"type": "object", "title": "time",
+         "properties": {"sec": {"type": "integer", "minimum": 0},
+                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+_XYZ = {"type": "object", "properties": {a: {"type": "number"} for a in "xyz"}, "required": list("xyz")}
+_QUAT = {"type": "object", "properties": {a: {"type": "number"} for a in "xyzw"}, "required": list("xyzw")}
+_POSE = {"title": "foxglove.Pose", "type": "object", "properties": {"position": _XYZ, "orientation": _QUAT},
+         "required": ["position", "orientation"]}
+_COLOR = {"title": "foxglove.Color", "type": "object",
+          "properties": {a: {"type": "number"} for a in "rgba"}, "required": list("rgba")}
+
+POSE_IN_FRAME_SCHEMA = {
+    "title": "foxglove.PoseInFrame", "description": "A timestamped pose for an object or reference frame in 3D space",
+    "type": "object", "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE},
+    "required": ["timestamp", "frame_id", "pose"]}
+LOCATION_FIX_SCHEMA = {
+    "title": "foxglove.LocationFix", "description": "A navigation satellite fix for any Global Navigation Satellite System",
+    "type": "object", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"},
         "latitude": {"type": "number"}, "longitude": {"type": "number"}, "altitude": {"type": "number"},
-        "position_covariance": {"type": "array", "items": {"type": "number"}},
-        "position_covariance_type": {"type": "integer"},
-    },
-}
+        "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
+        "position_covariance_type": {"title": "foxglove.PositionCovarianceType",
+                                     "oneOf": [{"title": t, "const": i} for i, t in
+                                               enumerate(("UNKNOWN", "APPROXIMATED", "DIAGONAL_KNOWN", "KNOWN"))]},
+        "color": _COLOR},
+    "required": ["timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance",
+                 "position_covariance_type"]}
+_LINE = {"title": "foxglove.LinePrimitive", "type": "object", "properties": {
+    "type": {"title": "foxglove.LineType", "oneOf": [{"title": t, "const": i} for i, t in
+                                                     enumerate(("LINE_STRIP", "LINE_LOOP", "LINE_LIST"))]},
+    "pose": _POSE, "thickness": {"type": "number"}, "scale_invariant": {"type": "boolean"},
+    "points": {"type": "array", "items": {"title": "foxglove.Point3", **_XYZ}},
+    "color": _COLOR, "colors": {"type": "array", "items": _COLOR},
+    "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}}},
+    "required": ["type", "pose", "thickness", "scale_invariant", "points", "color", "colors", "indices"]}
+SCENE_UPDATE_SCHEMA = {
+    "title": "foxglove.SceneUpdate", "description": "An update to the entities displayed in a 3D scene",
+    "type": "object", "properties": {
+        "deletions": {"type": "array", "items": {
+            "title": "foxglove.SceneEntityDeletion", "type": "object",
+            "properties": {"timestamp": _TIME, "type": {"title": "foxglove.SceneEntityDeletionType",
+                                                         "oneOf": [{"title": "MATCHING_ID", "const": 0},
+                                                                   {"title": "ALL", "const": 1}]},
+                           "id": {"type": "string"}},
+            "required": ["timestamp", "type", "id"]}},
+        "entities": {"type": "array", "items": {
+            "title": "foxglove.SceneEntity", "type": "object", "properties": {
+                "timestamp": _TIME, "frame_id": {"type": "string"}, "id": {"type": "string"},
+                "lifetime": {"type": "object", "title": "duration",
+                             "properties": {"sec": {"type": "integer"},
+                                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}},
+                "frame_locked": {"type": "boolean"},
+                "metadata": {"type": "array", "items": {
+                    "title": "foxglove.KeyValuePair", "type": "object",
+                    "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                    "required": ["key", "value"]}},
+                "lines": {"type": "array", "items": _LINE}},
+            "required": ["timestamp", "frame_id", "id", "lifetime", "frame_locked", "metadata"]}}},
+    "required": ["deletions", "entities"]}
+GEOJSON_SCHEMA = {
+    "title": "foxglove.GeoJSON", "description": "GeoJSON data for annotating maps", "type": "object",
+    "properties": {"geojson": {"type": "string", "description": "GeoJSON data encoded as a UTF-8 string"}},
+    "required": ["geojson"]}
+
+_IDENTITY = {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+LEFT_RGBA = (0.85, 0.1, 0.1, 1.0)
+RIGHT_RGBA = (0.1, 0.3, 0.9, 1.0)
+PATH_RGBA = (0.1, 0.7, 0.2, 1.0)
 
 
-def _stamp(t_s: float) -> dict:
-    ns = int(round(t_s * 1e9))
+def _schema(doc: dict) -> bytes:
+    return json.dumps(doc, sort_keys=True, separators=(",", ":")).encode()
+
+
+def _stamp(ns: int) -> dict:
     return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
 
-def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geodesy.Origin,
-                     max_rate_hz: float = 10.0) -> None:
-    """Write the trajectory table (trajectory.csv columns) to ``path`` (see module docstring)."""
+def _dumps(obj) -> str:
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False)
+
+
+def _decimate(points: np.ndarray) -> np.ndarray:
+    return points[::max(1, -(-len(points) // MAX_LINE_POINTS))]
+
+
+def _line(points_n: np.ndarray, rgba: tuple, thickness_px: float = 3.0) -> dict:
+    """A LINE_STRIP through ``points_n`` (M, 3) [m], drawn ``thickness_px`` screen pixels wide."""
+    pts = [{"x": x, "y": y, "z": z} for x, y, z in _decimate(points_n).tolist()]
+    return {"type": 0, "pose": _IDENTITY, "thickness": thickness_px, "scale_invariant": True, "points": pts,
+            "color": dict(zip("rgba", rgba)), "colors": [], "indices": []}
+
+
+def _scene(ns: int, entity_id: str, lines: list[dict], meta: dict[str, str]) -> str:
+    entity = {"timestamp": _stamp(ns), "frame_id": "n", "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
+              "frame_locked": False, "metadata": [{"key": k, "value": v} for k, v in meta.items()], "lines": lines}
+    return _dumps({"deletions": [], "entities": [entity]})
+
+
+def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = 10.0
+                        ) -> list[ExtraChannel]:
+    """Pose, fix and path channels of a trajectory table (trajectory.csv columns)."""
     t = table["t_s"]
     step = max(1, int(round(1.0 / (max_rate_hz * np.median(np.diff(t)))))) if t.size > 1 else 1
     sel = np.arange(0, t.size, step)
+    ns = np.rint(t[sel] * 1e9).astype(np.int64)
     pos = np.column_stack([table["e_m"], table["n_m"], table["u_m"]])[sel]
+    q = np.column_stack([table[c] for c in ("qx", "qy", "qz", "qw")])[sel]
+    var = np.column_stack([table[f"sigma_{a}_m"] for a in "enu"])[sel] ** 2
     lat, lon, h = geodesy.n_to_geodetic(pos, origin)
-    with atomic_path(path) as tmp, open(tmp, "wb") as stream:
-        w = Writer(stream, compression=CompressionType.ZSTD)
-        w.start(profile="", library="trackfusion")
-        pose_ch = w.register_channel("/trajectory/pose", "json", w.register_schema(
-            "foxglove.PoseInFrame", "jsonschema", json.dumps(_POSE_SCHEMA).encode()))
-        fix_ch = w.register_channel("/trajectory/fix", "json", w.register_schema(
-            "foxglove.LocationFix", "jsonschema", json.dumps(_FIX_SCHEMA).encode()))
-        for j, i in enumerate(sel):
-            stamp = _stamp(float(t[i]))
-            log_time = stamp["sec"] * 1_000_000_000 + stamp["nsec"]
-            pose = {"timestamp": stamp, "frame_id": "n", "pose": {
-                "position": {"x": float(pos[j, 0]), "y": float(pos[j, 1]), "z": float(pos[j, 2])},
-                "orientation": {"x": float(table["qx"][i]), "y": float(table["qy"][i]), "z": float(table["qz"][i]),
-                                "w": float(table["qw"][i])}}}
-            cov = [float(table[f"sigma_{a}_m"][i]) ** 2 for a in "enu"]
-            fix = {"timestamp": stamp, "frame_id": "n", "latitude": float(lat[j]), "longitude": float(lon[j]),
-                   "altitude": float(h[j]),
-                   "position_covariance": [cov[0], 0.0, 0.0, 0.0, cov[1], 0.0, 0.0, 0.0, cov[2]],
-                   "position_covariance_type": 2}
-            w.add_message(pose_ch, log_time=log_time, data=json.dumps(pose).encode(), publish_time=log_time)
-            w.add_message(fix_ch, log_time=log_time, data=json.dumps(fix).encode(), publish_time=log_time)
-        w.finish()
+    poses, fixes = [], []
+    for k, (p, qq, v) in enumerate(zip(pos.tolist(), q.tolist(), var.tolist())):
+        stamp = _stamp(int(ns[k]))
+        poses.append(_dumps({"timestamp": stamp, "frame_id": "n", "pose": {
+            "position": dict(zip("xyz", p)), "orientation": dict(zip("xyzw", qq))}}))
+        fixes.append(_dumps({"timestamp": stamp, "frame_id": "n", "latitude": float(lat[k]),
+                             "longitude": float(lon[k]), "altitude": float(h[k]),
+                             "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0, 0.0, 0.0, v[2]],
+                             "position_covariance_type": 2}))
+    t0 = ns[:1]
+    path = _scene(int(ns[0]), "trajectory", [_line(np.column_stack([table["e_m"], table["n_m"], table["u_m"]]),
+                                                   PATH_RGBA, 2.0)], {"what": "smoothed IMU origin path"})
+    return [ExtraChannel("/trajectory/pose", "foxglove.PoseInFrame", _schema(POSE_IN_FRAME_SCHEMA), ns, poses),
+            ExtraChannel("/trajectory/fix", "foxglove.LocationFix", _schema(LOCATION_FIX_SCHEMA), ns, fixes),
+            ExtraChannel("/trajectory/path", "foxglove.SceneUpdate", _schema(SCENE_UPDATE_SCHEMA), t0, [path])]
+
+
+def rail_channels(geometry: dict[str, np.ndarray], origin: geodesy.Origin, t0_ns: int) -> list[ExtraChannel]:
+    """Rail traces of a geometry table (geometry.csv columns ``left_e_m`` ... ``right_u_m``) as a
+    3-D scene and as GeoJSON, stamped ``t0_ns``."""
+    rails = {side: np.column_stack([geometry[f"{side}_{a}_m"] for a in "enu"]) for side in ("left", "right")}
+    scene = _scene(t0_ns, "rails", [_line(rails["left"], LEFT_RGBA), _line(rails["right"], RIGHT_RGBA)],
+                   {"left": "red", "right": "blue", "chainage_m": f"{geometry['chainage_m'][0]:.3f} to "
+                                                                  f"{geometry['chainage_m'][-1]:.3f}"})
+    features = []
+    for side, pts in rails.items():
+        lat, lon, h = geodesy.n_to_geodetic(_decimate(pts), origin)
+        features.append({"type": "Feature", "properties": {"name": f"{side} rail"},
+                         "geometry": {"type": "LineString",
+                                      "coordinates": np.column_stack([lon, lat, h]).round(9).tolist()}})
+    geojson = _dumps({"geojson": _dumps({"type": "FeatureCollection", "features": features})})
+    t0 = np.array([t0_ns], np.int64)
+    return [ExtraChannel("/track/rails", "foxglove.SceneUpdate", _schema(SCENE_UPDATE_SCHEMA), t0, [scene]),
+            ExtraChannel("/track/rails_geojson", "foxglove.GeoJSON", _schema(GEOJSON_SCHEMA), t0, [geojson])]
+
+
+RAIL_COLUMNS = tuple(f"{side}_{a}_m" for side in ("left", "right") for a in "enu")
+
+
+def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geodesy.Origin,
+                     max_rate_hz: float = 10.0, raw_log: str | Path | None = None,
+                     geometry: dict[str, np.ndarray] | None = None, allow_truncated: bool = False) -> None:
+    """Write ``fused.mcap`` (module docstring): the trajectory table (trajectory.csv columns), the
+    rails when ``geometry`` has the rail columns, the topics of ``raw_log`` when given (its
+    readable part with ``allow_truncated``)."""
+    extra = trajectory_channels(table, origin, max_rate_hz)
+    if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
+        extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
+    raw = read_log(raw_log, allow_truncated=allow_truncated) if raw_log is not None else SensorLog()
+    write_log(path, raw, extra)

@@ -75,10 +75,25 @@ _INT64_MAX = np.iinfo(np.int64).max
 
 @dataclass
 class _Stream:
-    """One channel to write: ``log_time_ns`` (N,) int64 and N JSON payloads (ASCII str)."""
+    """One channel to write: ``log_time_ns`` (N,) int64 and N JSON payloads (ASCII str);
+    ``schema_data``: the JSON Schema bytes when ``schema`` is not one of :mod:`.schemas`."""
 
     topic: str
     schema: str
+    log_time_ns: np.ndarray
+    payloads: list[str]
+    schema_data: bytes | None = None
+
+
+@dataclass
+class ExtraChannel:
+    """A channel of another schema written beside a log's sensors (e.g. Foxglove messages in
+    ``fused.mcap``): ``topic``, ``schema_name``, ``schema_data`` (JSON Schema bytes),
+    ``log_time_ns`` (N,) int64 non-decreasing and N JSON payloads (ASCII text)."""
+
+    topic: str
+    schema_name: str
+    schema_data: bytes
     log_time_ns: np.ndarray
     payloads: list[str]
 
@@ -306,8 +321,8 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
     for s in streams:
         if s.schema not in schema_ids:
             schema_ids[s.schema] = len(schema_ids) + 1
-            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema",
-                                      data=schemas.schema_bytes(s.schema)))
+            data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
+            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema", data=data))
     for i, s in enumerate(streams):
         channel_recs.append(Channel(id=i + 1, schema_id=schema_ids[s.schema], topic=s.topic,
                                     message_encoding="json", metadata={}))
@@ -369,7 +384,7 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
     out.put(MAGIC, in_crc=False)
 
 
-def write_log(path: str | Path, log: SensorLog) -> None:
+def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = ()) -> None:
     """Write ``log`` to ``path`` as an MCAP raw log (docs/log_format.md).
 
     Every sensor present (not None; total stations by id) becomes one channel; messages of
@@ -379,8 +394,11 @@ def write_log(path: str | Path, log: SensorLog) -> None:
     The file appears atomically (temporary name, then rename) and is byte-identical for
     identical input (no wall-clock time). Raises :class:`SensorDataError` for data the reader
     would refuse (non-finite values, times not strictly increasing, wrong shapes).
+    ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
+    :func:`read_log` accepts; ``fused.mcap`` is written this way).
     """
-    streams = _streams(log)
+    streams = _streams(log) + [_Stream(c.topic, c.schema_name, np.asarray(c.log_time_ns, np.int64), list(c.payloads),
+                                       c.schema_data) for c in extra]
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)

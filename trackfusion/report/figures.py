@@ -1,0 +1,148 @@
+"""Figures of the run report (matplotlib object API on the Agg canvas: no display needed).
+
+Every function takes plain arrays / ``metrics.json`` dicts and returns a matplotlib ``Figure``;
+:func:`png_bytes` renders one. Units on the axes: metres for positions and chainage, millimetres
+for errors, sigmas and geometry values.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+#: Longest series drawn per line (the figures are decimated to this many points).
+MAX_POINTS = 20000
+
+
+def _figure(width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def png_bytes(fig, dpi: int = 100) -> bytes:
+    """PNG bytes of a figure."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _every(n: int) -> slice:
+    return slice(None, None, max(1, -(-n // MAX_POINTS)))
+
+
+def plan_and_profile(traj: dict[str, np.ndarray]):
+    """Plan (north against east) and profile (up against chainage) of the trajectory [m]."""
+    fig = _figure(11.0, 3.6)
+    ax_plan, ax_prof = fig.subplots(1, 2)
+    s = _every(traj["t_s"].size)
+    ax_plan.plot(traj["e_m"][s], traj["n_m"][s], lw=1.0, color="C0")
+    ax_plan.plot(traj["e_m"][0], traj["n_m"][0], "o", color="C2", label="start")
+    ax_plan.plot(traj["e_m"][-1], traj["n_m"][-1], "s", color="C3", label="end")
+    ax_plan.set_xlabel("east e (m)")
+    ax_plan.set_ylabel("north n (m)")
+    ax_plan.set_aspect("equal", adjustable="datalim")
+    ax_plan.set_title("plan (frame n, equal scales)", fontsize=9)
+    ax_plan.legend(fontsize=7)
+    ax_plan.grid(True, alpha=0.3)
+    ax_prof.plot(traj["chainage_m"][s], traj["u_m"][s], ".", ms=1.0, color="C0")
+    ax_prof.set_xlabel("chainage (m)")
+    ax_prof.set_ylabel("up u (m)")
+    ax_prof.set_title("profile (IMU origin height)", fontsize=9)
+    ax_prof.grid(True, alpha=0.3)
+    return fig
+
+
+def sigmas_along_chainage(traj: dict[str, np.ndarray]):
+    """Smoothed 1-sigma position uncertainty (e, n, u) [mm] against chainage and time."""
+    fig = _figure(11.0, 3.4)
+    ax_s, ax_t = fig.subplots(1, 2, sharey=True)
+    s = _every(traj["t_s"].size)
+    for i, axis in enumerate("enu"):
+        sigma_mm = traj[f"sigma_{axis}_m"][s] * 1e3
+        ax_s.plot(traj["chainage_m"][s], sigma_mm, ".", ms=1.0, color=f"C{i}", label=f"sigma {axis}")
+        ax_t.plot(traj["t_s"][s], sigma_mm, lw=0.8, color=f"C{i}", label=f"sigma {axis}")
+    ax_s.set_xlabel("chainage (m)")
+    ax_t.set_xlabel("time t (s)")
+    ax_s.set_ylabel("1-sigma (mm)")
+    ax_s.set_title("position sigma along chainage", fontsize=9)
+    ax_t.set_title("position sigma along time", fontsize=9)
+    ax_t.legend(fontsize=7, markerscale=6)
+    for ax in (ax_s, ax_t):
+        ax.grid(True, alpha=0.3)
+    return fig
+
+
+def relative_accuracy(ra: dict, thresholds: dict):
+    """MSE and ADEV [mm] against distance scale [m] per component (metrics ``relative_accuracy``),
+    the MSE / ADEV limits as horizontal lines and the threshold scale as a vertical line."""
+    comps = list(ra)
+    fig = _figure(11.0, 3.6)
+    axes = np.atleast_1d(fig.subplots(1, len(comps), sharey=True))
+    for ax, comp in zip(axes, comps):
+        entry = ra[comp]
+        scales = np.asarray(entry["scales_m"], float)
+        for key, style, label in (("mse_mm", "o-", "MSE"), ("adev_mm", "s-", "ADEV"),
+                                  ("oadev_mm", ":", "overlapping ADEV")):
+            y = np.array([np.nan if v is None else v for v in entry.get(key, [])], float)
+            ok = np.isfinite(y) & (y > 0)
+            if ok.any():
+                ax.loglog(scales[ok], y[ok], style, color="C0" if key == "mse_mm" else "C1", label=label)
+        ax.axhline(thresholds["mse_mm"], color="C0", ls="--", lw=1, label=f"MSE limit {thresholds['mse_mm']:g} mm")
+        ax.axhline(thresholds["adev_mm"], color="C1", ls="--", lw=1,
+                   label=f"ADEV limit {thresholds['adev_mm']:g} mm")
+        ax.axvline(thresholds["scale_m"], color="0.5", lw=0.8)
+        ax.set_title(comp, fontsize=9)
+        ax.set_xlabel("distance scale L (m)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_ylabel("relative error (mm)")
+    axes[0].legend(fontsize=7, loc="upper left")
+    return fig
+
+
+def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], limits_mm: dict[str, float],
+                      title: str, exceedances: list[dict] | None = None):
+    """One panel per series [mm] against chainage [m]; ``limits_mm[name]`` draws a +-limit band,
+    exceedance chainages are marked with red ticks on the panel whose column they name."""
+    names = list(series)
+    fig = _figure(11.0, 1.7 * len(names) + 0.6)
+    axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
+    s = _every(chainage_m.size)
+    for ax, name in zip(axes, names):
+        ax.plot(chainage_m[s], series[name][s], lw=0.7, color="C0")
+        limit = limits_mm.get(name)
+        if limit is not None:
+            ax.axhspan(-limit, limit, color="C2", alpha=0.12, lw=0)
+            ax.axhline(limit, color="C2", lw=0.8, ls="--")
+            ax.axhline(-limit, color="C2", lw=0.8, ls="--")
+        marks = [e["chainage_m"] for e in exceedances or [] if e.get("check") == name]
+        if marks:
+            ax.plot(marks, [e["value_mm"] for e in exceedances if e.get("check") == name], "v", color="C3", ms=4)
+        ax.set_ylabel(f"{name}\n(mm)", fontsize=7)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("chainage (m)")
+    axes[0].set_title(title, fontsize=9)
+    return fig
+
+
+def time_sync_curves(time_sync: dict):
+    """Pearson correlation r against trial clock offset [s] per station, the chosen offset marked."""
+    fig = _figure(11.0, 3.2)
+    ax = fig.subplots()
+    for i, (sid, entry) in enumerate(sorted(time_sync.items())):
+        lags = np.asarray(entry.get("lags_s", []), float)
+        r = np.asarray(entry.get("r", []), float)
+        if lags.size and lags.size == r.size:
+            ax.plot(lags, r, lw=1.0, color=f"C{i}", label=f"station {sid}")
+        if entry.get("offset_s") is not None:
+            ax.axvline(entry["offset_s"], color=f"C{i}", ls="--", lw=0.8)
+    ax.set_xlabel("station clock minus IMU clock (s)")
+    ax.set_ylabel("correlation r")
+    ax.set_title("time synchronisation: velocity correlation", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    return fig
