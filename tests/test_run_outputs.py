@@ -103,7 +103,7 @@ def full_dir(run_dir, tmp_path_factory):
 
 def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
     text = (run_dir / "out" / "report.html").read_text()
-    assert _sections(text) == BASE_SECTIONS
+    assert _sections(text) == BASE_SECTIONS | {"geometry", "faults"}  # a run computes geometry and fault checks
     passed = json.loads((run_dir / "out" / "metrics.json").read_text())["evaluation"]["passed"]
     verdict = f"<p class='verdict {'pass' if passed else 'fail'}'>The survey {'MEETS' if passed else 'DOES NOT MEET'}"
     assert verdict + " the thresholds at 5 m (MSE &le; 0.67 mm, ADEV &le; 0.16 mm, vertical and lateral)" in text
@@ -170,7 +170,8 @@ def test_fused_mcap_holds_the_trajectory_and_copies_the_raw_topics(run_dir):
     raw = _messages(run_dir / "log.mcap")
     for topic, msgs in raw.items():
         assert fused[topic] == msgs, topic  # schema, encoding, log_time and bytes identical
-    assert set(fused) == set(raw) | {"/trajectory/pose", "/trajectory/fix", "/trajectory/path"}
+    assert set(fused) == set(raw) | {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
+                                     "/track/rails_geojson"}  # the run writes geometry.csv, so rails too
     poses, fixes = fused["/trajectory/pose"], fused["/trajectory/fix"]
     assert {p[:2] for p in poses} == {("foxglove.PoseInFrame", "json")}
     assert {f[:2] for f in fixes} == {("foxglove.LocationFix", "json")}
