@@ -27,13 +27,14 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import geodesy
-from .errors import ConfigError, FusionError, config_error_from_validation
+from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
 from .fusion import preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.trajectory import DenseTrajectory, densify
+from .registration.stations import StationSetupConfig
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.types import InclinometerData, OdometerData, SensorLog
@@ -98,10 +99,23 @@ class GnssConfig(ClockConfig):
 
 
 class TotalStationsConfig(_Strict):
-    """Prism lever arm and station set-ups (fused by the total-station issue; accepted here)."""
+    """Robotic total stations (docs/total_stations.md): the prism lever arm in ``b``; each
+    station's set-up (given, or resected from ``control_points`` in ``n``); the instrument's
+    precision (angles, distance ``sigma + ppm``) and refraction coefficient; and the priors of
+    each station's correction in the fusion: tilt of the vertical axis (the electronic level's
+    set-up accuracy), orientation, position of the instrument point, clock drift."""
 
     prism_lever_arm_b_m: Vec3
-    stations: dict[str, dict[str, Any]] = {}
+    stations: dict[str, StationSetupConfig] = Field(min_length=1)
+    control_points: dict[str, Vec3] = {}
+    angle_sigma_arcsec: float = Field(0.5, gt=0)
+    distance_sigma_mm: float = Field(3.0, gt=0)
+    distance_ppm: float = Field(1.5, ge=0)
+    refraction_k: float = 0.13
+    tilt_sigma_arcsec: float = Field(2.0, gt=0)
+    orientation_sigma_arcsec: float = Field(2.0, gt=0)
+    position_sigma_mm: float = Field(1.0, gt=0)
+    clock_drift_sigma_ppm: float = Field(5.0, gt=0)
 
 
 class SensorsConfig(_Strict):
@@ -179,9 +193,9 @@ def _check_inputs(pipeline: Pipeline) -> None:
         value = getattr(cfg.inputs, field_name)
         if value is not None and not pipeline.path(value).is_file():
             raise ConfigError(f"{src}: inputs.{field_name}: file not found: {pipeline.path(value)}")
-    if cfg.factors.total_stations.enabled:
-        raise ConfigError(f"{src}: factors.total_stations: total-station fusion is not available yet "
-                          "(set it to false)")
+    if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is None:
+        raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
+                          "or set factors.total_stations: false)")
     if cfg.factors.gnss.enabled and cfg.sensors.gnss is None:
         raise ConfigError(f"{src}: sensors.gnss: missing (needed by factors.gnss; or set factors.gnss: false)")
 
@@ -211,6 +225,9 @@ def _read(pipeline: Pipeline) -> SensorLog:
     from .sensors.mcap_log import read_log
     cfg = pipeline.config
     topics = ["/imu", "/odometer", "/gnss", "/inclinometer"]
+    if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is not None:
+        from .sensors.schemas import TOTAL_STATION_PREFIX
+        topics += [TOTAL_STATION_PREFIX + sid for sid in cfg.sensors.total_stations.stations]
     log = read_log(pipeline.path(cfg.inputs.log), topics=topics, allow_truncated=cfg.inputs.allow_truncated)
     if log.imu is None:
         raise FusionError(f"{pipeline.path(cfg.inputs.log)}: the log has no /imu topic")
@@ -271,6 +288,63 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         static_intervals_s=static, factors=fs, keyframes=cfg.keyframes, smoother=cfg.smoother,
         odometer=odometer, gnss=gnss, inclinometer=inclinometer)
     return problem, info
+
+
+# --- total stations (issue 5) ---------------------------------------------------------------------
+
+def _prepare_total_stations(pipeline: Pipeline, log: SensorLog, problem: FusionProblem,
+                            say: Callable[[str], None]):
+    """Set-ups, readings to ``n`` and time synchronisation; returns the problem with its prism
+    readings and the :class:`~trackfusion.registration.survey.PrismSurvey` (None when off)."""
+    cfg = pipeline.config
+    if not cfg.factors.total_stations.enabled:
+        return problem, None
+    from dataclasses import replace
+    from .errors import RegistrationError
+    from .registration.survey import prepare_prisms
+    try:
+        survey = prepare_prisms(log.total_stations, cfg.sensors.total_stations, cfg.factors.total_stations,
+                                problem.origin, problem.odometer)
+    except RegistrationError as exc:
+        raise RegistrationError(f"{pipeline.path(cfg.inputs.log)}: {exc}") from None
+    for sid, st in survey.stations.items():
+        how = f"r_max {st.sync.r_max:.3f}" if st.sync is not None else "given"
+        say(f"total station {sid}: {st.t_s.size} readings, clock offset {st.offset_s:+.4f} s ({how})")
+    return replace(problem, prisms=survey.readings), survey
+
+
+def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, table: dict[str, np.ndarray],
+                           cfg: PipelineConfig) -> dict[str, Any]:
+    """``time_sync``, ``registration``, ``rejected_prism`` and ``round_trip`` of metrics.json."""
+    from .registration.survey import corrected_points, registration_report, round_trip
+    fs = cfg.factors.total_stations
+    states = res.station_states
+    time_sync = {}
+    for j, (sid, st) in enumerate(survey.stations.items()):
+        q = states[j] if states is not None else np.zeros(8)
+        entry = st.sync.to_json() if st.sync is not None else {"r_max": None, "lags_s": [], "r": []}
+        entry.update(offset_s=st.offset_s + float(q[6]), drift_ppm=float(q[7]), offset_correlation_s=st.offset_s)
+        time_sync[sid] = entry
+    out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": res.rejected_prism}
+    odo = problem.odometer
+    if odo is not None:
+        out["registration"] = registration_report(survey, states, odo, fs.registration, problem.origin)
+        before_t, before_p = [], []
+        for j, st in enumerate(survey.stations.values()):
+            t, p = corrected_points(st, states[j] if states is not None else np.zeros(8))
+            before_t.append(t)
+            before_p.append(p)
+        t = np.concatenate(before_t)
+        order = np.argsort(t)
+        t = t[order]
+        try:
+            out["round_trip"] = {
+                "before_fusion": round_trip(t, np.concatenate(before_p)[order], np.interp(t, odo.t_s, odo.distance_m)),
+                "after_fusion": round_trip(table["t_s"], np.column_stack([table["e_m"], table["n_m"], table["u_m"]]),
+                                           table["chainage_m"])}
+        except TrackfusionError as exc:
+            out["round_trip"] = {"error": str(exc)}
+    return out
 
 
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
@@ -340,6 +414,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     timings["read_s"] = time.perf_counter() - tic
     tic = time.perf_counter()
     problem, info = build_problem(pipeline, log, say)
+    problem, survey = _prepare_total_stations(pipeline, log, problem, say)
     timings["preprocess_s"] = time.perf_counter() - tic
     res = smooth(problem, say)
     timings.update(res.timings_s)
@@ -357,6 +432,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),
                                "trajectory_rate_hz": float(imu_rate / every),
                                **_smoother_metrics(res, info)}
+    if survey is not None:
+        metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
     if cfg.inputs.reference is not None:
         from .evaluation.reference import compare_with_reference
         metrics.update(compare_with_reference(table, pipeline.path(cfg.inputs.reference), problem.origin.to_dict()))

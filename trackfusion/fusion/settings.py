@@ -7,7 +7,7 @@ written as ``true``/``false`` instead of a mapping (defaults, switched on or off
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -90,10 +90,45 @@ class InclinometerFactorSettings(_Factor):
     sigma_mrad: float = Field(0.1, gt=0)
 
 
+class TimeSyncFactorSettings(_Strict):
+    """Clock synchronisation of each station by speed correlation (registration/timesync.py):
+    lags within ``max_lag_s`` searched on ``lag_step_s`` then ``fine_step_s``; refused below
+    ``min_r``, when a second peak more than ``exclusion_s`` away comes within
+    ``ambiguity_margin`` of the best, or with less than ``min_travel_m`` of travel."""
+
+    max_lag_s: float = Field(10.0, gt=0)
+    lag_step_s: float = Field(0.1, gt=0)
+    fine_step_s: float = Field(0.005, gt=0)
+    min_r: float = Field(0.8, gt=-1, le=1)
+    ambiguity_margin: float = Field(0.02, ge=0)
+    exclusion_s: float = Field(2.0, gt=0)
+    min_travel_m: float = Field(1.0, gt=0)
+
+
 class TotalStationFactorSettings(_Factor):
-    """Prism positions from robotic total stations (issue 5; not yet fused)."""
+    """Prism positions from robotic total stations (docs/total_stations.md).
+
+    ``registration``: ``graph`` estimates each station's small rotation, translation, clock
+    offset and (``estimate_clock_drift``) drift in the factor graph, with priors from the
+    instrument specification (sensors.total_stations); ``seed`` applies seed 003's registration
+    (X-Z rotation about the station centre and translation, cross-track translation) to the
+    point clouds before fusion and holds the stations fixed (clock offset still refined);
+    ``none`` fixes the set-ups as given. Huber loss on the whitened residual (``huber_k``);
+    after a solve, readings whose normalised squared residual (3 degrees of freedom) exceeds
+    ``gate_chi2`` are rejected and the graph solved again; ``mislock_min_run`` or more such
+    readings of one station with at most ``mislock_max_gap`` accepted readings between them form
+    a mis-lock (the station tracking something else), and the whole run is rejected.
+    """
 
     enabled: bool = False
+    registration: Literal["graph", "seed", "none"] = "graph"
+    estimate_clock_drift: bool = True
+    huber_k: float = Field(2.0, gt=0)
+    gate_chi2: float = Field(21.1, gt=0)
+    mislock_min_run: int = Field(5, ge=2)
+    mislock_max_gap: int = Field(3, ge=0)
+    clock_offset_sigma_s: float = Field(0.05, gt=0)
+    time_sync: TimeSyncFactorSettings = TimeSyncFactorSettings()
 
 
 class FactorSettings(_Strict):
