@@ -325,7 +325,12 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
         entry = st.sync.to_json() if st.sync is not None else {"r_max": None, "lags_s": [], "r": []}
         entry.update(offset_s=st.offset_s + float(q[6]), drift_ppm=float(q[7]), offset_correlation_s=st.offset_s)
         time_sync[sid] = entry
-    out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": res.rejected_prism}
+    ids = list(survey.stations)
+    rejected = []
+    for r in res.rejected_prism:  # on the IMU clock with the refined clock offset and drift
+        q = states[ids.index(r["station"])] if states is not None else np.zeros(8)
+        rejected.append({**r, "t_s": r["t_s"] - float(q[6]) - 1e-6 * float(q[7]) * r["t_s"]})
+    out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": rejected}
     odo = problem.odometer
     if odo is not None:
         out["registration"] = registration_report(survey, states, odo, fs.registration, problem.origin)

@@ -48,7 +48,8 @@ class TimeSyncSettings:
     ``r_max`` makes the result ambiguous; ``exclusion_s``: how far from the best lag a second peak
     must lie; ``min_travel_m``: least travel (odometer) in the station's interval;
     ``max_gap_factor``: readings further apart than this many median intervals are not
-    differenced."""
+    differenced; prism speeds above ``max_speed_factor`` times the odometer's highest speed plus
+    ``speed_margin_mps`` are left out (jumps)."""
 
     max_lag_s: float = 10.0
     lag_step_s: float = 0.1
@@ -58,6 +59,8 @@ class TimeSyncSettings:
     exclusion_s: float = 2.0
     min_travel_m: float = 1.0
     max_gap_factor: float = 1.5
+    max_speed_factor: float = 1.5
+    speed_margin_mps: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -175,6 +178,11 @@ def synchronise(station_id: str, t_station_s: np.ndarray, prism_pos_n: np.ndarra
     if odo_t.size < 2:
         raise RegistrationError(f"time sync: station {station_id}: no odometer record within "
                                 f"+-{settings.max_lag_s:g} s of the station's readings")
+    # a jump of the reported point (mis-lock onto another reflector, a gross error) is no motion
+    # of the trolley: leave out speeds the trolley never reached
+    odo_speed = reference_speed(odo_t[:-1], odo_t[1:], odo_t, odo_d)
+    plausible = v <= settings.max_speed_factor * float(odo_speed.max()) + settings.speed_margin_mps
+    t0, t1, v = t0[plausible], t1[plausible], v[plausible]
     n_lag = int(np.floor(settings.max_lag_s / settings.lag_step_s + 1e-9))
     coarse = centre_s + settings.lag_step_s * np.arange(-n_lag, n_lag + 1)
     r_coarse = correlation_curve(t0, t1, v, odo_t, odo_d, coarse)
