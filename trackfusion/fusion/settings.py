@@ -13,6 +13,8 @@ import numpy as np
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from ..registration.timesync import TimeSyncSettings
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -90,21 +92,6 @@ class InclinometerFactorSettings(_Factor):
     sigma_mrad: float = Field(0.1, gt=0)
 
 
-class TimeSyncFactorSettings(_Strict):
-    """Clock synchronisation of each station by speed correlation (registration/timesync.py):
-    lags within ``max_lag_s`` searched on ``lag_step_s`` then ``fine_step_s``; refused below
-    ``min_r``, when a second peak more than ``exclusion_s`` away comes within
-    ``ambiguity_margin`` of the best, or with less than ``min_travel_m`` of travel."""
-
-    max_lag_s: float = Field(10.0, gt=0)
-    lag_step_s: float = Field(0.1, gt=0)
-    fine_step_s: float = Field(0.005, gt=0)
-    min_r: float = Field(0.8, gt=-1, le=1)
-    ambiguity_margin: float = Field(0.02, ge=0)
-    exclusion_s: float = Field(2.0, gt=0)
-    min_travel_m: float = Field(1.0, gt=0)
-
-
 class TotalStationFactorSettings(_Factor):
     """Prism positions from robotic total stations (docs/total_stations.md).
 
@@ -119,6 +106,7 @@ class TotalStationFactorSettings(_Factor):
     good readings, ~0.05 an hour at 10 Hz and two stations); ``mislock_min_run`` or more such
     readings of one station with at most ``mislock_max_gap`` accepted readings between them form
     a mis-lock (the station tracking something else), and the whole run is rejected.
+    ``time_sync``: registration/timesync.py.
     """
 
     enabled: bool = False
@@ -129,7 +117,7 @@ class TotalStationFactorSettings(_Factor):
     mislock_min_run: int = Field(5, ge=2)
     mislock_max_gap: int = Field(3, ge=0)
     clock_offset_sigma_s: float = Field(0.05, gt=0)
-    time_sync: TimeSyncFactorSettings = TimeSyncFactorSettings()
+    time_sync: TimeSyncSettings = TimeSyncSettings()
 
 
 class FactorSettings(_Strict):

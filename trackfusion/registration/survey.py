@@ -59,13 +59,6 @@ class PrismSurvey:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def _sync_settings(fs) -> timesync.TimeSyncSettings:
-    t = fs.time_sync
-    return timesync.TimeSyncSettings(max_lag_s=t.max_lag_s, lag_step_s=t.lag_step_s, fine_step_s=t.fine_step_s,
-                                     min_r=t.min_r, ambiguity_margin=t.ambiguity_margin, exclusion_s=t.exclusion_s,
-                                     min_travel_m=t.min_travel_m)
-
-
 def _chainage(t_s: np.ndarray, odometer: OdometerData) -> np.ndarray:
     return np.interp(t_s, odometer.t_s, odometer.distance_m)
 
@@ -102,7 +95,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
             if odometer is None:
                 raise RegistrationError(f"station {sid}: time synchronisation needs the odometer "
                                         f"(or give sensors.total_stations.stations.{sid}.clock_offset_s)")
-            sync = timesync.synchronise(sid, d.t_s, pos_n, odometer.t_s, odometer.distance_m, _sync_settings(fs))
+            sync = timesync.synchronise(sid, d.t_s, pos_n, odometer.t_s, odometer.distance_m, fs.time_sync)
             offset = sync.offset_s
         centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
         stations[sid] = StationPrep(setup, centre, d.t_s - offset, pos_n, cov_n, offset, sync, res)

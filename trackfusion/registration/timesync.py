@@ -37,30 +37,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pydantic import BaseModel, ConfigDict, Field
+
 from ..errors import RegistrationError
 
 
-@dataclass(frozen=True)
-class TimeSyncSettings:
-    """``max_lag_s``: lags searched are ``[-max_lag_s, max_lag_s]``, first on a grid of
-    ``lag_step_s``, then on ``fine_step_s`` within two coarse steps of the coarse peak;
-    ``min_r``: smallest acceptable ``r_max``; ``ambiguity_margin``: a second peak this close to
-    ``r_max`` makes the result ambiguous; ``exclusion_s``: how far from the best lag a second peak
-    must lie; ``min_travel_m``: least travel (odometer) in the station's interval;
-    ``max_gap_factor``: readings further apart than this many median intervals are not
-    differenced; prism speeds above ``max_speed_factor`` times the odometer's highest speed plus
-    ``speed_margin_mps`` are left out (jumps)."""
+class TimeSyncSettings(BaseModel):
+    """``factors.total_stations.time_sync`` of a pipeline YAML. ``max_lag_s``: lags searched are
+    ``[-max_lag_s, max_lag_s]``, first on a grid of ``lag_step_s``, then on ``fine_step_s`` within
+    two coarse steps of the coarse peak; ``min_r``: smallest acceptable ``r_max``;
+    ``ambiguity_margin``: a second peak this close to ``r_max`` makes the result ambiguous;
+    ``exclusion_s``: how far from the best lag a second peak must lie; ``min_travel_m``: least
+    travel (odometer) in the station's interval; ``max_gap_factor``: readings further apart than
+    this many median intervals are not differenced; prism speeds above ``max_speed_factor`` times
+    the odometer's highest speed plus ``speed_margin_mps`` are left out (jumps)."""
 
-    max_lag_s: float = 10.0
-    lag_step_s: float = 0.1
-    fine_step_s: float = 0.005
-    min_r: float = 0.8
-    ambiguity_margin: float = 0.02
-    exclusion_s: float = 2.0
-    min_travel_m: float = 1.0
-    max_gap_factor: float = 1.5
-    max_speed_factor: float = 1.5
-    speed_margin_mps: float = 0.3
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_lag_s: float = Field(10.0, gt=0)
+    lag_step_s: float = Field(0.1, gt=0)
+    fine_step_s: float = Field(0.005, gt=0)
+    min_r: float = Field(0.8, gt=-1, le=1)
+    ambiguity_margin: float = Field(0.02, ge=0)
+    exclusion_s: float = Field(2.0, gt=0)
+    min_travel_m: float = Field(1.0, gt=0)
+    max_gap_factor: float = Field(1.5, gt=1)
+    max_speed_factor: float = Field(1.5, gt=0)
+    speed_margin_mps: float = Field(0.3, ge=0)
 
 
 @dataclass(frozen=True)
