@@ -133,9 +133,11 @@ def _chain_rotations(R0: np.ndarray, pims, dt_key: np.ndarray, omega_ie_n: np.nd
 
 
 def initial_states(problem: FusionProblem, t_key: np.ndarray, R_nb: np.ndarray,
-                   static: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   static: np.ndarray, median_window: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Initial positions (K,3) and velocities (K,3): odometer speed along the trolley axis (else
-    differenced GNSS), integrated, then shifted onto the GNSS fixes (interpolated residuals)."""
+    differenced GNSS), integrated, then shifted onto the GNSS fixes (interpolated residuals;
+    with ``median_window`` > 1, residuals median-filtered over that many fixes first, so that a
+    run of gross errors shorter than half the window does not pull the start)."""
     axis_n = R_nb @ problem.trolley.axis_b
     g = problem.gnss
     if problem.odometer is not None:
@@ -152,6 +154,9 @@ def initial_states(problem: FusionProblem, t_key: np.ndarray, R_nb: np.ndarray,
         antenna = pos + R_nb @ g.lever_arm_b
         pred = np.column_stack([np.interp(g.t_s, t_key, antenna[:, i]) for i in range(3)])
         resid = g.pos_n - pred
+        if median_window > 1:
+            from scipy.ndimage import median_filter
+            resid = median_filter(resid, size=(median_window, 1), mode="nearest")
         pos += np.column_stack([np.interp(t_key, g.t_s, resid[:, i]) for i in range(3)])
     return pos, vel
 
@@ -532,7 +537,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     tic = time.perf_counter()
     R0 = _chain_rotations(alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
     pos0, vel0 = initial_states(init_problem if gnss is not None or problem.prisms is not None
-                                else _without_gnss(problem), t_key, R0, static)
+                                else _without_gnss(problem), t_key, R0, static,
+                                PRISM_INIT_MEDIAN if gnss is None and problem.prisms is not None else 0)
     if fs.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity
         g_n = geodesy.gravity_n(pos0, problem.origin)
@@ -625,6 +631,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
                           state.ts if prisms is not None else None,
                           sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])))
+
+
+#: prism readings over which the initial shift onto them is median-filtered (30 s at 10 Hz: a
+#: mis-lock of up to 15 s does not pull the initial trajectory)
+PRISM_INIT_MEDIAN = 301
 
 
 def _with_prism_fixes(problem: FusionProblem) -> FusionProblem:

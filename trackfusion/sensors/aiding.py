@@ -369,12 +369,13 @@ def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handov
 
 def _station_epochs(intervals: list[tuple[float, float]], rate_hz: float, offset_s: float,
                     drift_ppm: float) -> np.ndarray:
-    """IMU times (K,) of a station's samples: the regular grid k / rate_hz of its own clock inside the
-    given IMU-clock intervals (merged where they touch or overlap)."""
+    """IMU times (K,) of a station's samples: the regular grid k / rate_hz (k >= 0) of its own clock
+    inside the given IMU-clock intervals (merged where they touch or overlap); with a negative
+    offset the station's first readings of the run are missing (its clock is not yet at 0)."""
     out = [np.zeros(0)]
     for a, b in _merge(intervals):
         st_a, st_b = (np.array([a, b]) * (1.0 + drift_ppm * 1e-6) + offset_s) * rate_hz
-        k = np.arange(np.ceil(st_a), np.floor(st_b) + 1)
+        k = np.arange(max(np.ceil(st_a), 0.0), np.floor(st_b) + 1)  # a station clock starts at 0
         t = (k / rate_hz - offset_s) / (1.0 + drift_ppm * 1e-6)
         out.append(t[(t >= a) & (t <= b)])  # guard against rounding at the ends
     return np.concatenate(out)
