@@ -12,7 +12,9 @@ from trackfusion.registration import timesync as ts
 from trackfusion.registration.mislock import classify_flags
 from trackfusion.registration.polar import StationSetup, n_to_polar, polar_to_n
 from trackfusion.registration.seed_method import overlap_axes, register_seed
-from trackfusion.registration.stations import ARCSEC, ControlReading, readings_to_n, resect
+from trackfusion.registration.polar import DEFAULT_REFRACTION_K
+from trackfusion.registration.stations import (ARCSEC, ControlReading, StationSetupConfig, readings_to_n, resect,
+                                              station_setup)
 
 ORIGIN = geodesy.Origin(22.93, 112.87, 25.0)
 
@@ -146,6 +148,20 @@ def test_resection_reports_residuals_of_noisy_readings():
     assert np.linalg.norm(np.array(res.setup.pos_n) - truth.pos_n) < 3e-3
     assert 0.1 < res.sigma0 < 3.0
     assert len(res.to_json()["residuals"]) == 4 and np.all(np.abs(res.distance_mm) < 5)
+
+
+def test_station_from_pipeline_config_given_or_resected():
+    truth = StationSetup("TS02", (-20.0, 4.0, 1.7), orientation_rad=np.radians(88.0))
+    cfg = StationSetupConfig.model_validate({"resection": [r.model_dump() for r in _readings(truth)]})
+    setup, res = station_setup("TS02", cfg, CONTROL, ORIGIN, 0.5, 1.0, 1.5, DEFAULT_REFRACTION_K)
+    np.testing.assert_allclose(setup.pos_n, truth.pos_n, atol=1e-6)
+    assert res is not None and res.to_json()["residuals"][0]["point"] == "CP1"
+    given = StationSetupConfig(pos_n_m=(1.0, 2.0, 3.0), orientation_deg=90.0, tilt_arcsec=(2.0, -1.0))
+    setup, res = station_setup("TS01", given, {}, ORIGIN, 0.5, 1.0, 1.5, 0.13)
+    assert res is None and setup.orientation_rad == pytest.approx(np.pi / 2)
+    assert setup.tilt_rad == pytest.approx((2 * ARCSEC, -1 * ARCSEC))
+    with pytest.raises(RegistrationError, match="give pos_n_m and orientation_deg"):
+        station_setup("TS03", StationSetupConfig(pos_n_m=(0.0, 0.0, 0.0)), {}, ORIGIN, 0.5, 1.0, 1.5, 0.13)
 
 
 def test_resection_needs_three_points():
