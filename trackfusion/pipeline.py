@@ -484,6 +484,13 @@ def format_summary(result: RunResult) -> str:
              "  time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in t.items())]
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
+    for sid, ts in m.get("time_sync", {}).items():  # total stations (issue 5)
+        est = m.get("registration", {}).get("stations", {}).get(sid, {})
+        r = f"r_max {ts['r_max']:.3f}" if ts.get("r_max") is not None else "offset given"
+        lines.append(f"  station {sid}: clock offset {ts['offset_s']:+.4f} s ({r}), drift {ts['drift_ppm']:+.2f} ppm"
+                     + (f", tilt {est['tilt_arcsec'][0]:+.2f}/{est['tilt_arcsec'][1]:+.2f}\"" if est else ""))
+    if m.get("rejected_prism"):
+        lines.append(f"  rejected prism readings: {len(m['rejected_prism'])}")
     if "relative_accuracy" in m:
         for c in ("vertical", "lateral"):
             ra = m["relative_accuracy"][c]
