@@ -94,11 +94,31 @@ def checks(f: dict) -> dict:
         "run_s": f["run_s"]}
 
 
+def run_variants(seed: int) -> dict:
+    """The survey of ``seed`` fused with the seed's registration and with none."""
+    sim = simulated(seed)
+    truth = json.loads((sim / "truth.json").read_text())
+    variants = {"seed": seed}
+    for reg in ("seed", "none"):
+        f = figures(run(sim, reg).metrics, truth)
+        variants[reg] = {"figures": f, "checks": checks(f)}
+        print(f"seed {seed}, registration {reg}: " + ", ".join(f"{k} {v:.3g}" for k, v in variants[reg]["checks"].items()))
+    return variants
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--variants", action="store_true")
+    ap.add_argument("--variants-only", action="store_true",
+                    help="run only the variants (first seed) and add them to an existing results file")
     args = ap.parse_args()
+    if args.variants_only:
+        result = json.loads(RESULTS.read_text())
+        result["variants"] = run_variants(args.seeds[0])
+        RESULTS.write_text(json.dumps(result, indent=1, default=float) + "\n")
+        print(f"wrote {RESULTS}")
+        return
     per_seed, worst = {}, {k: 0.0 for k in TARGETS}
     for seed in args.seeds:
         sim = simulated(seed)
@@ -117,15 +137,7 @@ def main() -> None:
             print(f"  overlap {m:>12}: " + "; ".join(
                 f"{c} max {v['max_abs_mm']:.2f} mean {v['mean_mm']:+.2f} std {v['std_mm']:.2f} mm, "
                 f"slope {v['slope_mm_per_m']:+.2e} mm/m, {v['relative_accuracy_ppm']:.1f} ppm" for c, v in tab.items()))
-    variants = {}
-    if args.variants:
-        sim = simulated(args.seeds[0])
-        truth = json.loads((sim / "truth.json").read_text())
-        for reg in ("seed", "none"):
-            f = figures(run(sim, reg).metrics, truth)
-            variants[reg] = {"figures": f, "checks": checks(f)}
-            print(f"seed {args.seeds[0]}, registration {reg}: "
-                  + ", ".join(f"{k} {v:.3g}" for k, v in variants[reg]["checks"].items()))
+    variants = run_variants(args.seeds[0]) if args.variants else {}
     result = {"benchmark": "bridge", "targets": TARGETS, "worst": worst,
               "met": {k: worst[k] <= TARGETS[k] for k in TARGETS}, "seeds": per_seed, "variants": variants,
               "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()),
