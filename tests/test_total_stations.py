@@ -199,3 +199,15 @@ def test_mislock_runs_and_isolated_outliers():
     rejected, mislock = classify_flags(flags, min_run=5, max_gap=3)
     assert np.flatnonzero(mislock).tolist() == list(range(10, 19))
     assert np.flatnonzero(rejected).tolist() == [3] + list(range(10, 19)) + [30, 35]
+
+
+def test_seed_registration_undo_restores_the_nominal_points():
+    from trackfusion.registration.seed_method import SeedRegistration
+    from trackfusion.registration.survey import StationPrep, _undo
+    axes = np.vstack([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]])
+    reg = SeedRegistration(3.0 * ARCSEC, 0.004, -0.002, np.array([-1152.0, -6.0, 1.8]), axes, (500.0, 690.0))
+    pts = _curve(np.arange(500, 1100, 0.5))
+    setup = StationSetup("TS02", (-1152.0, -6.0, 1.8))
+    prep = StationPrep(setup, reg.centre_n, np.zeros(len(pts)), reg.apply(pts), np.zeros((len(pts), 3, 3)), 0.0,
+                       None, None, reg)
+    np.testing.assert_allclose(_undo(prep), pts, atol=1e-10)
