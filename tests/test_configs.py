@@ -26,4 +26,4 @@ def test_config_is_valid(path, tmp_path):
     data["inputs"] = {"log": "log.mcap", "reference": "truth.csv"}
     pipeline = parse_pipeline(data, str(path), tmp_path)
     assert pipeline.config.name == path.stem
-    assert not pipeline.config.factors.total_stations.enabled
+    assert pipeline.config.factors.total_stations.enabled == (path.stem == "bridge-total-station")

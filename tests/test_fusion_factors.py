@@ -139,3 +139,37 @@ def test_huber_weights_cost_and_jacobian_factors(rng):
     vv.insert(gtsam.symbol("x", 0), x)
     expected = 0.5 * np.sum((W @ (J[0] @ x + res[0])) ** 2)
     assert graph.error(vv) == pytest.approx(expected, rel=1e-12)
+
+
+def test_prism_jacobians(rng):
+    R, p, v = _rot(rng), rng.normal(0, 50, (K, 3)), rng.normal(0, 1, (K, 3))
+    w, lever = rng.normal(0, 0.2, (K, 3)), np.array([0.05, -0.1, 1.0])
+    dt, t_imu = rng.uniform(-0.05, 0.05, K), rng.uniform(0, 3000, K)
+    q = np.column_stack([rng.normal(0, 1e-4, (K, 6)), rng.normal(0, 0.01, K), rng.normal(0, 2, K)])
+    y, d = rng.normal(0, 50, (K, 3)), rng.normal(0, 500, (K, 3))
+
+    def f(R_=R, p_=p, v_=v, q_=q):
+        return fx.prism_residual(R_, p_, v_, w, lever, dt, t_imu, q_, y, d)[0]
+
+    r, (Jp, Jv, Jq) = fx.prism_residual(R, p, v, w, lever, dt, t_imu, q, y, d)
+    np.testing.assert_allclose(Jp, _pose_diff(lambda R_, p_: f(R_=R_, p_=p_), R, p, 3), atol=1e-6)
+    np.testing.assert_allclose(Jv, _vec_diff(lambda v_: f(v_=v_), v, 3), atol=1e-6)
+    np.testing.assert_allclose(Jq, _vec_diff(lambda q_: f(q_=q_), q, 3), atol=1e-5, rtol=1e-6)
+
+
+def test_prism_zero_residual_on_consistent_data(rng):
+    """A reading of the true prism, taken dt after the keyframe by a station whose point cloud is
+    rotated and shifted and whose clock is late, is explained exactly by the true correction."""
+    R, p, v = _rot(rng), rng.normal(0, 50, (K, 3)), rng.normal(0, 1, (K, 3))
+    lever, t_imu = np.array([0.0, 0.0, 1.0]), rng.uniform(0, 3000, K)
+    w = np.zeros((K, 3))
+    centre = np.array([10.0, -5.0, 2.0])
+    q = np.tile([2e-5, -1e-5, 3e-5, 0.002, -0.001, 0.003, 0.004, 1.5], (K, 1))
+    t_true = rng.uniform(-0.05, 0.05, K)
+    truth = p + R @ lever + v * t_true[:, None]
+    dt_nominal = t_true + q[:, 6] + 1e-6 * q[:, 7] * t_imu  # the reading's synchronised time
+    # the station sees the truth through the inverse of its correction (first order)
+    y = truth - q[:, 3:6]
+    y = y - np.cross(q[:, :3], y - centre)
+    r, _ = fx.prism_residual(R, p, v, w, lever, dt_nominal, t_imu, q, y, y - centre)
+    np.testing.assert_allclose(r, 0.0, atol=1e-6)  # second-order terms of the small rotation

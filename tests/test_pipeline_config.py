@@ -33,7 +33,7 @@ def _case(path, value):
     (_case(["factors", "nhc"], {"sigma_mm_per_s": -1.0}), "factors.nhc.sigma_mm_per_s"),
     (_case(["sensors", "imu"], {"grade": "toy"}), "sensors.imu"),
     (_case(["inputs", "log"], "missing.mcap"), "inputs.log"),
-    (_case(["factors", "total_stations"], True), "factors.total_stations"),
+    (_case(["factors", "total_stations"], True), "sensors.total_stations"),
     (_case(["factors", "gnss"], True), "sensors.gnss"),
 ])
 def test_bad_config_exit_2_names_field_and_writes_nothing(tmp_path, capsys, data, field):

@@ -27,13 +27,14 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from . import geodesy
-from .errors import ConfigError, FusionError, config_error_from_validation
+from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
 from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.trajectory import DenseTrajectory, densify
+from .registration.stations import StationSetupConfig
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.types import InclinometerData, OdometerData, SensorLog
@@ -101,10 +102,23 @@ class GnssConfig(ClockConfig):
 
 
 class TotalStationsConfig(_Strict):
-    """Prism lever arm and station set-ups (fused by the total-station issue; accepted here)."""
+    """Robotic total stations (docs/total_stations.md): the prism lever arm in ``b``; each
+    station's set-up (given, or resected from ``control_points`` in ``n``); the instrument's
+    precision (angles, distance ``sigma + ppm``) and refraction coefficient; and the priors of
+    each station's correction in the fusion: tilt of the vertical axis (the electronic level's
+    set-up accuracy), orientation, position of the instrument point, clock drift."""
 
     prism_lever_arm_b_m: Vec3
-    stations: dict[str, dict[str, Any]] = {}
+    stations: dict[str, StationSetupConfig] = Field(min_length=1)
+    control_points: dict[str, Vec3] = {}
+    angle_sigma_arcsec: float = Field(0.5, gt=0)
+    distance_sigma_mm: float = Field(3.0, gt=0)
+    distance_ppm: float = Field(1.5, ge=0)
+    refraction_k: float = 0.13
+    tilt_sigma_arcsec: float = Field(2.0, gt=0)
+    orientation_sigma_arcsec: float = Field(2.0, gt=0)
+    position_sigma_mm: float = Field(1.0, gt=0)
+    clock_drift_sigma_ppm: float = Field(5.0, gt=0)
 
 
 class SensorsConfig(_Strict):
@@ -185,9 +199,9 @@ def _check_inputs(pipeline: Pipeline) -> None:
         value = getattr(cfg.inputs, field_name)
         if value is not None and not pipeline.path(value).is_file():
             raise ConfigError(f"{src}: inputs.{field_name}: file not found: {pipeline.path(value)}")
-    if cfg.factors.total_stations.enabled:
-        raise ConfigError(f"{src}: factors.total_stations: total-station fusion is not available yet "
-                          "(set it to false)")
+    if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is None:
+        raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
+                          "or set factors.total_stations: false)")
     from .track.geometry import check_geometry_inputs
     check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
     if cfg.factors.gnss.enabled and cfg.sensors.gnss is None:
@@ -221,6 +235,9 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> t
     from .sensors.mcap_log import read_log_with_damage
     cfg = pipeline.config
     topics = ["/imu", "/odometer", "/gnss", "/inclinometer", "/gauge"]
+    if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is not None:
+        from .sensors.schemas import TOTAL_STATION_PREFIX
+        topics += [TOTAL_STATION_PREFIX + sid for sid in cfg.sensors.total_stations.stations]
     path = pipeline.path(cfg.inputs.log)
     log, damage = read_log_with_damage(path, topics=topics, allow_truncated=cfg.inputs.allow_truncated)
     if damage is not None:
@@ -304,6 +321,68 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     return problem, info
 
 
+# --- total stations (issue 5) ---------------------------------------------------------------------
+
+def _prepare_total_stations(pipeline: Pipeline, log: SensorLog, problem: FusionProblem,
+                            say: Callable[[str], None]):
+    """Set-ups, readings to ``n`` and time synchronisation; returns the problem with its prism
+    readings and the :class:`~trackfusion.registration.survey.PrismSurvey` (None when off)."""
+    cfg = pipeline.config
+    if not cfg.factors.total_stations.enabled:
+        return problem, None
+    from dataclasses import replace
+    from .errors import RegistrationError
+    from .registration.survey import prepare_prisms
+    try:
+        survey = prepare_prisms(log.total_stations, cfg.sensors.total_stations, cfg.factors.total_stations,
+                                problem.origin, problem.odometer)
+    except RegistrationError as exc:
+        raise RegistrationError(f"{pipeline.path(cfg.inputs.log)}: {exc}") from None
+    for sid, st in survey.stations.items():
+        how = f"r_max {st.sync.r_max:.3f}" if st.sync is not None else "given"
+        say(f"total station {sid}: {st.t_s.size} readings, clock offset {st.offset_s:+.4f} s ({how})")
+    return replace(problem, prisms=survey.readings), survey
+
+
+def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, table: dict[str, np.ndarray],
+                           cfg: PipelineConfig) -> dict[str, Any]:
+    """``time_sync``, ``registration``, ``rejected_prism`` and ``round_trip`` of metrics.json."""
+    from .registration.survey import corrected_points, registration_report, round_trip
+    fs = cfg.factors.total_stations
+    states = res.station_states
+    time_sync = {}
+    for j, (sid, st) in enumerate(survey.stations.items()):
+        q = states[j] if states is not None else np.zeros(8)
+        entry = st.sync.to_json() if st.sync is not None else {"r_max": None, "lags_s": [], "r": []}
+        entry.update(offset_s=st.offset_s + float(q[6]), drift_ppm=float(q[7]), offset_correlation_s=st.offset_s)
+        time_sync[sid] = entry
+    ids = list(survey.stations)
+    rejected = []
+    for r in res.rejected_prism:  # on the IMU clock with the refined clock offset and drift
+        q = states[ids.index(r["station"])] if states is not None else np.zeros(8)
+        rejected.append({**r, "t_s": r["t_s"] - float(q[6]) - 1e-6 * float(q[7]) * r["t_s"]})
+    out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": rejected}
+    odo = problem.odometer
+    if odo is not None:
+        out["registration"] = registration_report(survey, states, odo, fs.registration, problem.origin)
+        before_t, before_p = [], []
+        for j, st in enumerate(survey.stations.values()):
+            t, p = corrected_points(st, states[j] if states is not None else np.zeros(8))
+            before_t.append(t)
+            before_p.append(p)
+        t = np.concatenate(before_t)
+        order = np.argsort(t)
+        t = t[order]
+        try:
+            out["round_trip"] = {
+                "before_fusion": round_trip(t, np.concatenate(before_p)[order], np.interp(t, odo.t_s, odo.distance_m)),
+                "after_fusion": round_trip(table["t_s"], np.column_stack([table["e_m"], table["n_m"], table["u_m"]]),
+                                           table["chainage_m"])}
+        except TrackfusionError as exc:
+            out["round_trip"] = {"error": str(exc)}
+    return out
+
+
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
     return max(1, int(round(imu_rate_hz / rate_hz)))
 
@@ -373,6 +452,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     problem, info = build_problem(pipeline, log, say)
     found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
              "odometer_gross_errors": info.get("odometer_gross_errors")}
+    problem, survey = _prepare_total_stations(pipeline, log, problem, say)
     timings["preprocess_s"] = time.perf_counter() - tic
     res = smooth(problem, say)
     timings.update(res.timings_s)
@@ -391,6 +471,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                "trajectory_rate_hz": float(imu_rate / every),
                                **_smoother_metrics(res, info),
                                "faults": faults.detected_faults(problem, res, found)}
+    if survey is not None:
+        metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
     # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
     from .track.geometry import geometry_for_run
     tic_geometry = time.perf_counter()
@@ -465,6 +547,13 @@ def format_summary(result: RunResult) -> str:
         if "missing_static_period" in m["faults"]:
             miss = m["faults"]["missing_static_period"]
             lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")
+    for sid, ts in m.get("time_sync", {}).items():  # total stations (issue 5)
+        est = m.get("registration", {}).get("stations", {}).get(sid, {})
+        r = f"r_max {ts['r_max']:.3f}" if ts.get("r_max") is not None else "offset given"
+        lines.append(f"  station {sid}: clock offset {ts['offset_s']:+.4f} s ({r}), drift {ts['drift_ppm']:+.2f} ppm"
+                     + (f", tilt {est['tilt_arcsec'][0]:+.2f}/{est['tilt_arcsec'][1]:+.2f}\"" if est else ""))
+    if m.get("rejected_prism"):
+        lines.append(f"  rejected prism readings: {len(m['rejected_prism'])}")
     if "relative_accuracy" in m:
         for c in ("vertical", "lateral"):
             ra = m["relative_accuracy"][c]

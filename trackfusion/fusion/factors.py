@@ -182,3 +182,40 @@ def inclinometer_residual(R_nb: np.ndarray, up_n: np.ndarray, up_b_measured: np.
     y = np.einsum("kji,kj->ki", R_nb, up_n)
     r = y[:, :2] - up_b_measured[:, :2]
     return r, skew(y)[:, :2, :]
+
+
+# --- total-station prism ------------------------------------------------------------------------
+
+#: layout of a station's correction state ``T(j)`` (8,): rotation of its point cloud about the
+#: station centre [rad] (3, in ``n``), translation [m] (3), clock offset [s], clock drift [ppm]
+STATION_STATE_DIM = 8
+
+
+def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, omega_nb_b: np.ndarray,
+                   lever_arm_b: np.ndarray, dt_s: np.ndarray, t_imu_s: np.ndarray, station_state: np.ndarray,
+                   prism_n: np.ndarray, from_station_n: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Predicted minus (station-corrected) measured prism position, K readings at once.
+
+    The reading was taken ``dt_s`` (K,) [s] after its keyframe on the synchronised clock; the
+    station's correction state ``q`` (K,8) (:data:`STATION_STATE_DIM`) moves the reading in time
+    by ``-(q[6] + 1e-6 q[7] t_imu_s)`` and in space by ``q[:3] x from_station_n + q[3:6]``
+    (a small rotation about the station centre, then a translation: first order, < 1e-7 m for
+    rotations of arcseconds at 1 km). The prism ``p + R lever`` moves with ``v + R (w x lever)``.
+
+    R_nb (K,3,3); pos_n, vel_n (K,3); omega_nb_b (K,3) [rad/s] held constant; lever_arm_b (3,);
+    t_imu_s (K,) [s] the reading's IMU time (for the drift); prism_n (K,3) the reading in ``n``
+    with the nominal set-up; from_station_n (K,3) = prism_n minus the station centre.
+    Returns r (K,3) [m] and Jacobians [d/pose (K,3,6), d/vel (K,3,3), d/q (K,3,8)].
+    """
+    q = station_state
+    dt = dt_s - q[:, 6] - 1e-6 * q[:, 7] * t_imu_s  # (K,)
+    w_x_l = np.cross(omega_nb_b, lever_arm_b)
+    u = vel_n + np.einsum("kij,kj->ki", R_nb, w_x_l)
+    corrected = prism_n + np.cross(q[:, :3], from_station_n) + q[:, 3:6]
+    r = pos_n + R_nb @ lever_arm_b + u * dt[:, None] - corrected
+    d_theta = -R_nb @ skew(lever_arm_b) - np.einsum("kij,kjl->kil", R_nb, skew(w_x_l)) * dt[:, None, None]
+    d_pose = np.concatenate([d_theta, R_nb], axis=2)
+    d_vel = np.eye(3)[None] * dt[:, None, None]
+    d_q = np.concatenate([skew(from_station_n), -np.broadcast_to(np.eye(3), r.shape + (3,)),
+                          -u[:, :, None], -(u * 1e-6 * t_imu_s[:, None])[:, :, None]], axis=2)
+    return r, [d_pose, d_vel, d_q]

@@ -100,3 +100,27 @@ class FusionProblem:
     odometer: OdometerData | None = None
     gnss: GnssFixes | None = None
     inclinometer: InclinometerData | None = None
+    prisms: "PrismReadings | None" = None  # total stations (issue 5)
+
+
+@dataclass
+class PrismReadings:
+    """Total-station readings of the trolley prism, in ``n`` with the nominal (or resected)
+    set-ups, on the IMU clock as synchronised (``t_imu = t_station - offset_s``), sorted by time.
+
+    t_s (N,) [s]; pos_n (N,3) [m]; cov_n (N,3,3) [m^2] from the polar precision; station (N,)
+    int index into ``station_ids`` (J,); station_pos_n (J,3) [m] instrument points (the centre
+    of each station's rotation); lever_arm_b (3,) [m] IMU origin to the prism centre;
+    prior_sigma (J,8) standard deviations of each station's correction state
+    (fusion/factors.py ``STATION_STATE_DIM``: rotation [rad] (3, in ``n``), translation [m] (3),
+    clock offset [s], clock drift [ppm]) about zero.
+    """
+
+    t_s: np.ndarray
+    pos_n: np.ndarray
+    cov_n: np.ndarray
+    station: np.ndarray
+    station_ids: list[str]
+    station_pos_n: np.ndarray
+    lever_arm_b: np.ndarray
+    prior_sigma: np.ndarray

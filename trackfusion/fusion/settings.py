@@ -7,11 +7,13 @@ written as ``true``/``false`` instead of a mapping (defaults, switched on or off
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from ..registration.timesync import TimeSyncSettings
 
 
 class _Strict(BaseModel):
@@ -91,9 +93,31 @@ class InclinometerFactorSettings(_Factor):
 
 
 class TotalStationFactorSettings(_Factor):
-    """Prism positions from robotic total stations (issue 5; not yet fused)."""
+    """Prism positions from robotic total stations (docs/total_stations.md).
+
+    ``registration``: ``graph`` estimates each station's small rotation, translation, clock
+    offset and (``estimate_clock_drift``) drift in the factor graph, with priors from the
+    instrument specification (sensors.total_stations); ``seed`` applies seed 003's registration
+    (X-Z rotation about the station centre and translation, cross-track translation) to the
+    point clouds before fusion and holds the stations fixed (clock offset still refined);
+    ``none`` fixes the set-ups as given. Huber loss on the whitened residual (``huber_k``);
+    after a solve, readings whose normalised squared residual (3 degrees of freedom) exceeds
+    ``gate_chi2`` are rejected and the graph solved again (30: a false alarm in about 1.4e-6 of
+    good readings, ~0.05 an hour at 10 Hz and two stations); ``mislock_min_run`` or more such
+    readings of one station with at most ``mislock_max_gap`` accepted readings between them form
+    a mis-lock (the station tracking something else), and the whole run is rejected.
+    ``time_sync``: registration/timesync.py.
+    """
 
     enabled: bool = False
+    registration: Literal["graph", "seed", "none"] = "graph"
+    estimate_clock_drift: bool = True
+    huber_k: float = Field(2.0, gt=0)
+    gate_chi2: float = Field(30.0, gt=0)
+    mislock_min_run: int = Field(5, ge=2)
+    mislock_max_gap: int = Field(3, ge=0)
+    clock_offset_sigma_s: float = Field(0.05, gt=0)
+    time_sync: TimeSyncSettings = TimeSyncSettings()
 
 
 class FactorSettings(_Strict):

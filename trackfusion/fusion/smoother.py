@@ -18,7 +18,7 @@ from typing import Callable
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, E, S, V, X
+from gtsam.symbol_shorthand import B, E, S, T, V, X
 
 from .. import geodesy
 from ..errors import FusionError
@@ -26,7 +26,8 @@ from ..rotations import so3_exp
 from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
 from .preintegration import preintegrate
-from .problem import FusionProblem
+from .problem import FusionProblem, GnssFixes
+from ..registration.mislock import gate_prisms
 
 DEG = np.pi / 180.0
 
@@ -60,6 +61,8 @@ class SmootherResult:
     factor_counts: dict[str, int]
     rejected_gnss: list[dict]
     timings_s: dict[str, float] = field(default_factory=dict)
+    station_states: np.ndarray | None = None  # (J,8) total-station corrections (factors.STATION_STATE_DIM)
+    rejected_prism: list[dict] = field(default_factory=list)  # [{"station", "t_s", "reason", "nis"}]
 
 
 # --- keyframes and the initial estimate ----------------------------------------------------------
@@ -111,9 +114,11 @@ def _chain_rotations(R0: np.ndarray, pims, dt_key: np.ndarray, omega_ie_n: np.nd
 
 
 def initial_states(problem: FusionProblem, t_key: np.ndarray, R_nb: np.ndarray,
-                   static: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   static: np.ndarray, median_window: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Initial positions (K,3) and velocities (K,3): odometer speed along the trolley axis (else
-    differenced GNSS), integrated, then shifted onto the GNSS fixes (interpolated residuals)."""
+    differenced GNSS), integrated, then shifted onto the GNSS fixes (interpolated residuals;
+    with ``median_window`` > 1, residuals median-filtered over that many fixes first, so that a
+    run of gross errors shorter than half the window does not pull the start)."""
     axis_n = R_nb @ problem.trolley.axis_b
     g = problem.gnss
     if problem.odometer is not None:
@@ -130,6 +135,9 @@ def initial_states(problem: FusionProblem, t_key: np.ndarray, R_nb: np.ndarray,
         antenna = pos + R_nb @ g.lever_arm_b
         pred = np.column_stack([np.interp(g.t_s, t_key, antenna[:, i]) for i in range(3)])
         resid = g.pos_n - pred
+        if median_window > 1:
+            from scipy.ndimage import median_filter
+            resid = median_filter(resid, size=(median_window, 1), mode="nearest")
         pos += np.column_stack([np.interp(t_key, g.t_s, resid[:, i]) for i in range(3)])
     return pos, vel
 
@@ -148,20 +156,22 @@ class _Graph:
 
 @dataclass
 class _State:
-    """The estimate as arrays: R (K,3,3), p (K,3), v (K,3), odometer scale s (M,), GNSS errors e (F,3)."""
+    """The estimate as arrays: R (K,3,3), p (K,3), v (K,3), odometer scale s (M,), GNSS errors e (F,3),
+    total-station corrections ts (J,8)."""
 
     R: np.ndarray
     p: np.ndarray
     v: np.ndarray
     s: np.ndarray | None
     e: np.ndarray
+    ts: np.ndarray | None = None
 
     @classmethod
     def of(cls, values: gtsam.Values, with_scale: bool) -> "_State":
         P = gtsam.utilities.extractPose3(values)
         s = gtsam.utilities.extractVectors(values, "s")[:, 0] if with_scale else None
         return cls(P[:, :9].reshape(-1, 3, 3), P[:, 9:].copy(), gtsam.utilities.extractVectors(values, "v"), s,
-                   gtsam.utilities.extractVectors(values, "e"))
+                   gtsam.utilities.extractVectors(values, "e"), gtsam.utilities.extractVectors(values, "t"))
 
 
 class _Builder:
@@ -267,6 +277,44 @@ class _Builder:
 
         self.builders.append(("gnss_error", build))
         self._count("gnss_error", used.size)
+
+    # --- total stations (issue 5) ---------------------------------------------------------------
+
+    def prisms(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
+        """Factors of the used prism readings (indices into ``problem.prisms``) and one correction
+        state ``T(j)`` per station (inserted into ``values`` when missing) with its prior from the
+        instrument specification. Each reading is tied to its nearest keyframe and moved along
+        the prism's velocity (fusion/factors.py ``prism_residual``). Returns the factors' builder."""
+        pr, st, imu = self.pb.prisms, self.pb.factors.total_stations, self.pb.imu
+        for j in range(len(pr.station_ids)):
+            if not values.exists(T(j)):
+                values.insert(T(j), np.zeros(fx.STATION_STATE_DIM))
+            self.g.add(gtsam.PriorFactorVector(T(j), np.zeros(fx.STATION_STATE_DIM),
+                                               gtsam.noiseModel.Diagonal.Sigmas(pr.prior_sigma[j])))
+        kk = nearest_sample(self.t, pr.t_s[used])
+        dt = pr.t_s[used] - self.t[kk]
+        sid = pr.station[used]
+        y, t_imu = pr.pos_n[used], pr.t_s[used]
+        from_station = y - pr.station_pos_n[sid]
+        W = np.linalg.inv(np.linalg.cholesky(pr.cov_n[used]))
+        idx = self.idx[kk]
+        w_ib_b = 0.5 * (imu.gyro_radps[idx] + imu.gyro_radps[np.minimum(idx + 1, imu.t_s.size - 1)])
+        omega_ie_n = geodesy.earth_rate_n(self.pb.origin)
+        keys = [X(0) + kk, V(0) + kk, T(0) + sid]
+        ones = np.ones((used.size, 3))
+        lever = pr.lever_arm_b
+
+        def build(state: _State) -> fx.LinearBlocks:
+            R = state.R[kk]
+            w_nb_b = w_ib_b - np.einsum("kji,j->ki", R, omega_ie_n)
+            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, lever, dt, t_imu, state.ts[sid], y,
+                                     from_station)
+            return fx.LinearBlocks(keys, J, r, ones, st.huber_k, W)
+
+        self.builders.append(("prism", build))
+        self._count("prism", used.size)
+        self._count("station_prior", len(pr.station_ids))
+        return build
 
     def odometer(self) -> None:
         odo, st = self.pb.odometer, self.pb.factors.odometer
@@ -459,7 +507,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     key_idx = keyframe_indices(imu.t_s, problem.keyframes.spacing_s, extra)
     t_key = imu.t_s[key_idx]
     static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
-    alignment = _alignment(problem)
+    init_problem = _with_prism_fixes(problem) if gnss is None and problem.prisms is not None else problem
+    alignment = _alignment(init_problem)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
     say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
     gravity0 = geodesy.gravity_n(np.zeros((t_key.size, 3)), problem.origin)
@@ -471,7 +520,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if alignment.epoch == "end":  # aligned on the static period at the end: chain back to the start
         R0 = _chain_rotations(back_to_start(R0, alignment.R_nb, omega_ie_n, t_key[-1] - t_key[0]), pims,
                               np.diff(t_key), omega_ie_n)
-    pos0, vel0 = initial_states(problem if gnss is not None else _without_gnss(problem), t_key, R0, static)
+    pos0, vel0 = initial_states(init_problem if gnss is not None or problem.prisms is not None
+                                else _without_gnss(problem), t_key, R0, static,
+                                PRISM_INIT_MEDIAN if gnss is None and problem.prisms is not None else 0)
     if fs.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity
         g_n = geodesy.gravity_n(pos0, problem.origin)
@@ -493,7 +544,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         for m in range(int(seg[-1]) + 1):
             values.insert(S(m), np.zeros(1))
     b.imu()
-    b.anchor(absolute=gnss is not None)
+    prisms = problem.prisms if fs.total_stations.enabled else None
+    b.anchor(absolute=gnss is not None or prisms is not None)
     if fs.zupt.enabled:
         b.zupt()
     if fs.nhc.enabled:
@@ -512,6 +564,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             ok &= gnss.fix_quality != 5
         used = np.flatnonzero(ok)
     rejected: list[dict] = []
+    prism_used = np.arange(prisms.t_s.size) if prisms is not None else None
+    rejected_prism: list[dict] = []
     tic = time.perf_counter()
     iterations = 0
     cost0 = None
@@ -519,19 +573,30 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders = graph, dict(base_counts), list(base_builders)
         gnss_build = b.gnss(used, values) if gnss is not None and used.size else None
+        prism_build = b.prisms(prism_used, values) if prisms is not None else None
         G = _Graph(graph, b.builders, b.counts, gnss_build)
         say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
-            + (f" (GNSS round {round_ + 1})" if gnss is not None else ""))
+            + (f" (gating round {round_ + 1})" if gnss is not None or prisms is not None else ""))
         values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
                                              problem.smoother.relative_tolerance, say)
         iterations += its
         cost0 = c0 if cost0 is None else cost0
+        prism_done = True
+        if prism_build is not None:  # total stations (issue 5): gate, mis-lock runs
+            prism_used, newly = gate_prisms(prism_build(_State.of(values, with_scale)), prism_used, prisms,
+                                            fs.total_stations)
+            rejected_prism += newly
+            prism_done = not newly
         if gnss_build is None:
-            break
+            if prism_done:
+                break
+            continue
         nis = _gnss_nis(G, values, with_scale)
         bad = nis > fs.gnss.gate_chi2
         if not np.any(bad):
-            break
+            if prism_done:
+                break
+            continue
         for i, q in zip(used[bad], nis[bad]):
             rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
             if values.exists(E(int(i))):
@@ -547,7 +612,23 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     scale = state.s[seg] if with_scale else None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(cost),
-                          dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings)
+                          dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
+                          state.ts if prisms is not None else None,
+                          sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])))
+
+
+#: prism readings over which the initial shift onto them is median-filtered (30 s at 10 Hz: a
+#: mis-lock of up to 15 s does not pull the initial trajectory)
+PRISM_INIT_MEDIAN = 301
+
+
+def _with_prism_fixes(problem: FusionProblem) -> FusionProblem:
+    """The problem with its prism readings standing in as position fixes (for the alignment's
+    heading and the initial positions only)."""
+    from dataclasses import replace
+    pr = problem.prisms
+    fixes = GnssFixes(pr.t_s, pr.pos_n, pr.cov_n, np.full(pr.t_s.size, 4), pr.lever_arm_b)
+    return replace(problem, gnss=fixes)
 
 
 def _without_gnss(problem: FusionProblem) -> FusionProblem:

@@ -267,13 +267,20 @@ def simulate_gnss(t_s: np.ndarray, antenna_pos_n: np.ndarray, origin: geodesy.Or
 
 # --- total stations -------------------------------------------------------------------------------
 
+class MisLock(Interval):
+    """The station tracks another reflector at ``target_n_m`` [m, n] during the interval (IMU clock)."""
+
+    target_n_m: tuple[float, float, float]
+
+
 class StationConfig(_Spec):
     """One station: ``pos_n_m`` instrument point (tilting axis) in ``n`` [m], or the ground mark when
     ``instrument_height_m`` > 0; nominal ``orientation_deg`` (azimuth of the horizontal circle's zero,
     clockwise from north); ``blocked`` intervals (IMU clock) with the line of sight obstructed; and
     optionally fixed true errors (else drawn): ``tilt_arcsec`` (about east, about north),
     ``orientation_error_arcsec``, ``clock_offset_s``, ``clock_drift_ppm``
-    (t_station = t_imu + offset + drift t_imu)."""
+    (t_station = t_imu + offset + drift t_imu); ``mislocks``: intervals in which it reads another
+    reflector instead of the prism."""
 
     id: str
     pos_n_m: tuple[float, float, float]
@@ -284,6 +291,7 @@ class StationConfig(_Spec):
     orientation_error_arcsec: float | None = None
     clock_offset_s: float | None = None
     clock_drift_ppm: float | None = None
+    mislocks: list[MisLock] = []
 
 
 class Handover(_Spec):
@@ -361,12 +369,13 @@ def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handov
 
 def _station_epochs(intervals: list[tuple[float, float]], rate_hz: float, offset_s: float,
                     drift_ppm: float) -> np.ndarray:
-    """IMU times (K,) of a station's samples: the regular grid k / rate_hz of its own clock inside the
-    given IMU-clock intervals (merged where they touch or overlap)."""
+    """IMU times (K,) of a station's samples: the regular grid k / rate_hz (k >= 0) of its own clock
+    inside the given IMU-clock intervals (merged where they touch or overlap); with a negative
+    offset the station's first readings of the run are missing (its clock is not yet at 0)."""
     out = [np.zeros(0)]
     for a, b in _merge(intervals):
         st_a, st_b = (np.array([a, b]) * (1.0 + drift_ppm * 1e-6) + offset_s) * rate_hz
-        k = np.arange(np.ceil(st_a), np.floor(st_b) + 1)
+        k = np.arange(max(np.ceil(st_a), 0.0), np.floor(st_b) + 1)  # a station clock starts at 0
         t = (k / rate_hz - offset_s) / (1.0 + drift_ppm * 1e-6)
         out.append(t[(t >= a) & (t <= b)])  # guard against rounding at the ends
     return np.concatenate(out)
@@ -458,6 +467,8 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
         t_imu = _station_epochs(tracked, spec.rate_hz, offset, drift)
         t_imu = t_imu[~_in_intervals(t_imu, st.blocked)]
         prism = np.asarray(prism_at(t_imu), dtype=float).reshape(-1, 3) if t_imu.size else np.zeros((0, 3))
+        for ml in st.mislocks:
+            prism[_in_intervals(t_imu, [ml])] = ml.target_n_m
         hz, zen, dist = n_to_polar(prism, setup, origin, spec.refraction_k)
         ok = (dist >= spec.min_range_m) & (dist <= spec.max_range_m)
         t_imu, hz, zen, dist = t_imu[ok], hz[ok], zen[ok], dist[ok]
@@ -472,6 +483,7 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
             "orientation_error_arcsec": orient_err, "orientation_rad": float(setup.orientation_rad),
             "pos_n_m": [float(x) for x in st.pos_n_m], "instrument_height_m": st.instrument_height_m,
             "tracking_intervals_s": [list(iv) for iv in tracked], "observations": int(t_imu.size),
+            "mislock_times_s": t_imu[_in_intervals(t_imu, st.mislocks)].tolist(),
             "angle_noise_rms_arcsec": _rms(np.concatenate([e_hz, e_zen])) / ARCSEC,
             "distance_noise_rms_mm": _rms(e_dist) * 1e3}
     return data, {"stations": drawn, "refraction_k": spec.refraction_k}

@@ -329,8 +329,7 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
     cfg = sim.config
     factors = {"imu": True, "zupt": True, "nhc": True, "odometer": cfg.odometer is not None,
                "gnss": cfg.gnss is not None, "inclinometer": cfg.inclinometer is not None,
-               # prism fusion arrives with the total-station issue; the stations are listed below
-               "total_stations": False}
+               "total_stations": cfg.total_stations is not None}
     sensors: dict[str, Any] = {"imu": _imu_spec(cfg.imu).model_dump()}
     arms = sim.truth_info["lever_arms_b_m"]
     if cfg.odometer is not None:

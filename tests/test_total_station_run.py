@@ -1,0 +1,87 @@
+"""End to end on a short bridge survey with two total stations: a mis-lock is found and
+rejected, clocks come within 2 ms, and the fused trajectory within 1.5 mm of the truth.
+The full 54-minute survey is benchmarks/bridge.py."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from trackfusion.cli import main
+from trackfusion.pipeline import load_pipeline, run
+from trackfusion.simulation.scenarios import simulate_to_dir
+
+SHORT = ["motion.segments=[{hold_s: 30}, {move_to_m: 400, speed_mps: 1.5, accel_mps2: 0.3}, {hold_s: 20},"
+         " {move_to_m: 120, speed_mps: 1.5, accel_mps2: 0.3}, {hold_s: 30}]",
+         "total_stations.handover.1.at_chainage_m=300", "total_stations.handover.2.at_chainage_m=250",
+         # the stations at both ends of the shortened bridge (as in seed 003): each pins the heights near it
+         "total_stations.stations.1.pos_n_m=[-426.0, -6.0, 1.8]",
+         # TS01 locks onto a sign 3 m beside the track for 4 s on the way out
+         "total_stations.stations.0.mislocks=[{start_s: 120.0, duration_s: 4.0, target_n_m: [-150.0, -3.0, 2.5]}]"]
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def bridge_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bridge")
+    simulate_to_dir("bridge-total-station", d, seed=3, overrides=SHORT)
+    return d, run(load_pipeline(d / "pipeline.yaml"), d / "out")
+
+
+def test_clock_offsets_within_2_ms_and_contract_keys(bridge_run):
+    d, result = bridge_run
+    truth = json.loads((d / "truth.json").read_text())["total_stations"]
+    sync = result.metrics["time_sync"]
+    assert set(sync) == {"TS01", "TS02"}
+    for sid, entry in sync.items():
+        assert {"offset_s", "r_max", "lags_s", "r"} <= set(entry)
+        assert len(entry["lags_s"]) == len(entry["r"]) > 10
+        assert entry["r_max"] > 0.8
+        assert abs(entry["offset_s"] - truth[sid]["clock_offset_s"]) < 2e-3
+
+
+def test_mislock_rejected_as_a_run(bridge_run):
+    d, result = bridge_run
+    truth = json.loads((d / "truth.json").read_text())["total_stations"]
+    mis_t = np.array(truth["TS01"]["mislock_times_s"])
+    assert mis_t.size >= 30
+    rejected = [r for r in result.metrics["rejected_prism"] if r["reason"] == "mis_lock"]
+    assert {r["station"] for r in rejected} == {"TS01"}
+    # rejected times are on the synchronised IMU clock: every mis-locked reading is among them
+    t_rej = np.array([r["t_s"] for r in rejected])
+    assert np.all(np.min(np.abs(mis_t[:, None] - t_rej[None, :]), axis=1) < 2e-3)
+    assert t_rej.min() >= mis_t.min() - 0.5 and t_rej.max() <= mis_t.max() + 0.5
+
+
+def test_registration_tables_and_absolute_accuracy(bridge_run):
+    _, result = bridge_run
+    reg = result.metrics["registration"]
+    assert reg["method"] == "factor_graph"
+    for when in ("before", "after"):
+        for comp in ("elevation", "across_track"):
+            assert {"max_abs_mm", "mean_mm", "std_mm", "slope_mm_per_m"} <= set(reg["residuals"][when][comp])
+    pair = reg["pairs"]["TS01-TS02"]
+    assert {"before", "seed_003", "factor_graph"} <= set(pair)
+    assert abs(pair["seed_003"]["elevation"]["mean_mm"]) < 1e-6  # the translation step zeroes the mean
+    err = result.metrics["absolute_error"]
+    assert err["vertical"]["rms_mm"] < 1.5 and err["lateral"]["rms_mm"] < 1.5
+    rt = result.metrics["round_trip"]["after_fusion"]
+    assert rt["elevation"]["std_mm"] < 0.5 and rt["across_track"]["std_mm"] < 0.5
+
+
+def test_station_clock_that_cannot_be_synchronised_exits_2(bridge_run, tmp_path, capsys):
+    """A time-sync limit no station can meet: exit 2, one line naming the station, nothing written."""
+    d, _ = bridge_run
+    cfg = load_pipeline(d / "pipeline.yaml").config.model_dump(mode="json")
+    cfg["inputs"] = {"log": str(d / "log.mcap")}
+    cfg["factors"]["total_stations"]["time_sync"] = {"min_r": 0.9999}
+    import yaml
+    p = tmp_path / "p.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    assert main(["run", str(p), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "time sync: station TS0" in err[-1] and "below the limit" in err[-1]  # (progress lines before it)
+    assert not (tmp_path / "out").exists()
