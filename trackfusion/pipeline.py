@@ -253,11 +253,15 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(gyro_thr),
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
-    info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
-    say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
     gnss = None
     if log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled:
         gnss = GnssFixes.from_data(log.gnss, origin, sensors.gnss.lever_arm_b_m, sensors.gnss.clock_offset_s)
+        sigma_m = np.sqrt(np.diagonal(gnss.cov_n, axis1=1, axis2=2))
+        moving = preprocess.moving_intervals_by_gnss(static, gnss.t_s, gnss.pos_n, sigma_m)
+        info["static_intervals_moving_by_gnss_s"] = [[float(a), float(b)] for a, b in (static[i] for i in moving)]
+        static = [iv for i, iv in enumerate(static) if i not in moving]
+    info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
+    say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
     inclinometer = None
     if log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled:
         inc = log.inclinometer
