@@ -129,7 +129,8 @@ def test_static_imu_only_sees_a_start_without_vibration():
 
 def test_gnss_sees_a_constant_speed_the_imu_cannot():
     """Fixes (2 cm white noise, 1 Hz) over a 30 s interval: at rest it is kept (also with a
-    1 cm correlated offset drifting 5 mm), at 5 cm/s it is moving; fewer than 3 fixes: unchecked."""
+    1 cm correlated offset drifting 5 mm, and with gross outliers), at 5 cm/s it is moving; fewer
+    than 3 fixes: unchecked."""
     rng = np.random.default_rng(6)
     t = np.arange(0.0, 100.0, 1.0)
     speed = np.where(t >= 50.0, 0.05, 0.0)
@@ -140,6 +141,9 @@ def test_gnss_sees_a_constant_speed_the_imu_cannot():
     assert moving_intervals_by_gnss(intervals, t, pos, sigma) == [1]
     assert moving_intervals_by_gnss(intervals[:1], t, pos + np.array([1.0, 0, 0]) * t[:, None] * 1e-3, sigma) == []
     assert moving_intervals_by_gnss(intervals[:1], t, pos + np.array([1.0, 0, 0]) * t[:, None] * 1e-2, sigma) == [0]
+    outliers = pos.copy()
+    outliers[[10, 20, 30], 0] += np.array([1.0, 2.5, 0.4])  # gross fixes do not make it move
+    assert moving_intervals_by_gnss(intervals[:1], t, outliers, sigma) == []
 
 
 def test_static_wrong_thresholds_fail():

@@ -345,17 +345,23 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     tic = time.perf_counter()
     problem, info = build_problem(pipeline, log, say)
     timings["preprocess_s"] = time.perf_counter() - tic
-    res = smooth(problem, say)
-    timings.update(res.timings_s)
-    tic = time.perf_counter()
-    say("writing the trajectory at the output rate")
-    dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                    res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                    geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
+    sm = cfg.smoother
+    if sm.chunk_s is not None and problem.imu.t_s[-1] - problem.imu.t_s[0] > sm.chunk_s + sm.overlap_s:
+        from .fusion.chunks import smooth_in_chunks  # long runs: memory bounded by the chunk
+        res, dense = smooth_in_chunks(problem, sm.chunk_s, sm.overlap_s, every, say)
+        tic, table_every = time.perf_counter(), 1  # dense is already at the output rate
+    else:
+        res = smooth(problem, say)
+        tic, table_every = time.perf_counter(), every
+        dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
+                        res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
+                        geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
+    timings.update(res.timings_s)
+    say("writing the trajectory at the output rate")
     chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-    table = trajectory_table(dense, res, chainage, every)
+    table = trajectory_table(dense, res, chainage, table_every)
     metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
                                "imu_samples": int(problem.imu.t_s.size),
                                "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),

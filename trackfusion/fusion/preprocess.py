@@ -207,19 +207,22 @@ def moving_intervals_by_gnss(intervals: list[tuple[float, float]], t_s: np.ndarr
 
     intervals: [(start_s, end_s)] on the fixes' clock; t_s (F,) [s], pos_m (F,3) [m] fix
     positions, sigma_m (F,3) [m] their standard deviations per axis. Per interval and axis the
-    least-squares speed through the fixes inside is compared with its standard deviation
-    (from the median fix sigma, as if white); an interval whose speed exceeds ``n_sigma`` of it
-    on any axis (or ``n_sigma`` times the median sigma over its span, for a correlated fix
-    error) is moving. This is what an IMU cannot see: a constant speed. Intervals with fewer
-    than three fixes are not checked.
+    speed through the fixes inside (Theil-Sen: the median of the pairwise slopes, so outlying
+    fixes do not count; at most 300 fixes, evenly chosen) is compared with the least-squares
+    speed's standard deviation (from the median fix sigma, as if white); an interval whose speed
+    exceeds ``n_sigma`` of it on any axis (or ``n_sigma`` times the median sigma over its span,
+    for a correlated fix error) is moving. This is what an IMU cannot see: a constant speed.
+    Intervals with fewer than three fixes are not checked.
     """
     moving = []
     for i, (a, b) in enumerate(intervals):
-        inside = (t_s >= a) & (t_s <= b)
-        if np.count_nonzero(inside) < 3:
+        inside = np.flatnonzero((t_s >= a) & (t_s <= b))
+        if inside.size < 3:
             continue
+        inside = inside[np.unique(np.linspace(0, inside.size - 1, min(inside.size, 300)).astype(int))]
         t = t_s[inside] - t_s[inside].mean()
-        speed = (t @ (pos_m[inside] - pos_m[inside].mean(axis=0))) / (t @ t)
+        iu, ju = np.triu_indices(inside.size, 1)
+        speed = np.median((pos_m[inside][ju] - pos_m[inside][iu]) / (t[ju] - t[iu])[:, None], axis=0)
         sigma = np.median(sigma_m[inside], axis=0)
         bound = n_sigma * np.maximum(sigma / np.sqrt(t @ t), sigma / max(b - a, 1e-9))
         if np.any(np.abs(speed) > bound):
