@@ -148,7 +148,7 @@ class SmootherSettings(_Strict):
     max_iterations: int = Field(10, ge=1)
     relative_tolerance: float = Field(1e-7, gt=0)
     marginal_step_s: float = Field(1.0, gt=0)
-    chunk_s: float | None = Field(1800.0, ge=60.0)
+    chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)
 
     @model_validator(mode="after")
