@@ -76,7 +76,8 @@ class HandOver:
     error state of the last used fix at or before t_s: gnss_error_t_s [s] and gnss_error_n (3,)
     [m], or None; cov (9,9) or (12,12): joint marginal covariance of [pose (GTSAM tangent:
     rotation, position in ``b``), velocity, GNSS error] given the data up to t_s only (the next
-    chunk holds the data after it: no information counted twice).
+    chunk holds the data after it: no information counted twice); bias_var (6,) and scale_var
+    (or None) the marginal variances of the bias and scale there, on the same data.
     """
 
     k: int
@@ -89,6 +90,8 @@ class HandOver:
     gnss_error_t_s: float | None
     gnss_error_n: np.ndarray | None
     cov: np.ndarray
+    bias_var: np.ndarray
+    scale_var: float | None
 
     @property
     def alignment(self) -> Alignment:
@@ -241,14 +244,14 @@ class _Builder:
         n = self.pb.imu_noise
         sig = np.r_[[n.accel_bias_sigma_mps2] * 3, [n.gyro_bias_sigma_radps] * 3]
         bias0 = gtsam.imuBias.ConstantBias()
-        if self.join is not None:  # carried over from the previous chunk
+        T = self.pb.keyframes.bias_segment_s
+        rw_var = np.r_[[n.accel_bias_rw_psd * T] * 3, [n.gyro_bias_rw_psd * T] * 3]
+        if self.join is not None:  # the previous chunk's segment, then one random-walk step
             bias0 = gtsam.imuBias.ConstantBias(self.join.bias[:3], self.join.bias[3:])
-            sig = sig * JOIN_TIGHT
+            sig = np.sqrt(self.join.bias_var + rw_var)
         self.g.add(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_seg = int(self.bias_seg[-1]) + 1
-        T = self.pb.keyframes.bias_segment_s
-        rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.r_[[n.accel_bias_rw_psd * T] * 3,
-                                                            [n.gyro_bias_rw_psd * T] * 3]))
+        rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(rw_var))
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorConstantBias(B(m), B(m + 1), gtsam.imuBias.ConstantBias(), rw))
         self._count("imu", len(self.pims))
@@ -376,11 +379,11 @@ class _Builder:
         self.builders.append(("odometer", build))
         self._count("odometer", K)
         n_seg = int(self.seg[-1]) + 1
-        scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
-        if self.join is not None and self.join.scale is not None:  # carried over from the previous chunk
-            scale0, scale_sigma = np.array([self.join.scale]), scale_sigma * JOIN_TIGHT
-        self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
+        scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
+        if self.join is not None and self.join.scale is not None:  # the previous chunk's, then one step
+            scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
+        self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
@@ -612,10 +615,16 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
             i = int(earlier[-1])
             e_t, e = float(gnss.t_s[i]), values.atVector(E(i)).copy()
             keys.append(E(i))
+    d = 3 * len(keys) + 3  # pose, velocity (, GNSS error)
+    keys.append(B(int(bias_seg[k])))
+    if with_scale:
+        keys.append(S(int(seg[k])))
     past = _past_graph(gfg, k, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None)
     cov = joint_marginal_covariance(past, keys)
+    var = np.diag(cov)
     return HandOver(k, float(t_key[k]), state.R[k].copy(), state.p[k].copy(), state.v[k].copy(), bias,
-                    float(state.s[seg[k]]) if with_scale else None, e_t, e, cov)
+                    float(state.s[seg[k]]) if with_scale else None, e_t, e, cov[:d, :d], var[d:d + 6],
+                    float(var[d + 6]) if with_scale else None)
 
 
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
