@@ -453,3 +453,32 @@ def test_fuzz_message_content_only_raises_sensor_data_error(tmp_path_factory, pl
         if d is not None:
             assert np.all(np.diff(d.t_s) > 0)
             assert all(np.isfinite(np.asarray(v, dtype=float)).all() for v in vars(d).values())
+
+
+@pytest.mark.parametrize("bad_index", [None, 1523, 900])
+def test_decoding_in_batches_while_scanning_is_exact(tmp_path, monkeypatch, bad_index):
+    """The reader decodes the pending payloads of a channel once there are 100 (here) of them,
+    chunk by chunk during the scan (bounded memory): the values are those of one decode, and a
+    bad record in a later batch keeps its index."""
+    import trackfusion.sensors.mcap_log as mcap_log
+    monkeypatch.setattr(mcap_log, "_DECODE_BATCH", 100)
+    monkeypatch.setattr(mcap_log, "CHUNK_SIZE_BYTES", 64 * 1024)  # several chunks
+    batches = []
+    decode = mcap_log._RawChannel.decode_pending
+    monkeypatch.setattr(mcap_log._RawChannel, "decode_pending",
+                        lambda ch, schema: batches.append(ch.topic) or decode(ch, schema))
+    log = small_log(2000)
+    write_log(tmp_path / "ok.mcap", log)
+    if bad_index is None:
+        assert_logs_equal(read_log(tmp_path / "ok.mcap"), log)
+        assert batches.count("/imu") > 2
+        return
+    with open(tmp_path / "ok.mcap", "rb") as fh:
+        msgs = [(m.log_time, m.data.decode()) for _, _, m in make_reader(fh).iter_messages(topics=["/imu"])]
+    msgs[bad_index] = (msgs[bad_index][0], msgs[bad_index][1].replace('"y":', '"y":NaN,"q":', 1))
+    msgs[1800] = (msgs[1800][0], msgs[1800][1][:-1])  # a later bad record is not the one reported
+    _foreign_log(tmp_path / "bad.mcap", [("/imu", "trackfusion.Imu", msgs)])
+    batches.clear()
+    with pytest.raises(SensorDataError, match=f"/imu record {bad_index}: "):
+        read_log(tmp_path / "bad.mcap")
+    assert batches.count("/imu") > 2

@@ -11,7 +11,8 @@ import pytest
 
 from trackfusion.errors import ConfigError, SensorDataError
 from trackfusion.fusion.preprocess import (MAX_CONSECUTIVE_REPAIRS, detect_static_intervals,
-                                           repair_odometer, sensor_times_to_imu_clock)
+                                           moving_intervals_by_gnss, repair_odometer,
+                                           sensor_times_to_imu_clock)
 from trackfusion.sensors.types import ImuData, OdometerData
 
 G_MPS2 = 9.80
@@ -109,6 +110,40 @@ def test_static_imu_only_sees_motion_by_vibration(noise, thresholds, tol_s, max_
     imu, _, t, v = static_run(np.random.default_rng(3), noise)
     intervals = detect_static_intervals(imu, **thresholds)
     assert_matches_truth(intervals, t, v, tol_s=tol_s, max_speed_mps=max_speed_mps)
+
+
+def test_static_imu_only_sees_a_start_without_vibration():
+    """A smooth track gives no rolling vibration: the standard deviations stay quiet into the
+    motion (0.7 m/s after 5 s), but the start's acceleration moves the mean specific force;
+    the steady-mean test ends the interval before the trolley reaches 2 mm/s. The 30 s at a
+    constant 3 m/s look static to any IMU (hence the GNSS check below)."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 120.0, 1 / 200.0)
+    v, a, _ = trolley(t, STATIC_SEGMENTS)
+    f = np.column_stack([a, np.zeros(t.size), np.full(t.size, G_MPS2)]) + 1e-4 * rng.standard_normal((t.size, 3))
+    w = EARTH_RATE_B_RADPS + 1e-6 * rng.standard_normal((t.size, 3))
+    intervals = detect_static_intervals(ImuData(t, w, f))
+    assert len(intervals) == 3 and 44.0 <= intervals[1][0] < intervals[1][1] <= 76.0
+    assert_matches_truth([intervals[0], intervals[2]], t, v, tol_s=0.7, max_speed_mps=2e-3)
+
+
+def test_gnss_sees_a_constant_speed_the_imu_cannot():
+    """Fixes (2 cm white noise, 1 Hz) over a 30 s interval: at rest it is kept (also with a
+    1 cm correlated offset drifting 5 mm, and with gross outliers), at 5 cm/s it is moving; fewer
+    than 3 fixes: unchecked."""
+    rng = np.random.default_rng(6)
+    t = np.arange(0.0, 100.0, 1.0)
+    speed = np.where(t >= 50.0, 0.05, 0.0)
+    pos = np.column_stack([speed * (t - 50.0), np.zeros_like(t), np.zeros_like(t)])
+    pos += 0.02 * rng.standard_normal(pos.shape) + np.array([0.01, 0.0, 0.0]) + 5e-3 * (t / 100.0)[:, None]
+    sigma = np.full(pos.shape, 0.02)
+    intervals = [(5.0, 35.0), (60.0, 90.0), (40.0, 41.5)]
+    assert moving_intervals_by_gnss(intervals, t, pos, sigma) == [1]
+    assert moving_intervals_by_gnss(intervals[:1], t, pos + np.array([1.0, 0, 0]) * t[:, None] * 1e-3, sigma) == []
+    assert moving_intervals_by_gnss(intervals[:1], t, pos + np.array([1.0, 0, 0]) * t[:, None] * 1e-2, sigma) == [0]
+    outliers = pos.copy()
+    outliers[[10, 20, 30], 0] += np.array([1.0, 2.5, 0.4])  # gross fixes do not make it move
+    assert moving_intervals_by_gnss(intervals[:1], t, outliers, sigma) == []
 
 
 def test_static_wrong_thresholds_fail():

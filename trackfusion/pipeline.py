@@ -302,6 +302,11 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(gyro_thr),
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
+    if gnss is not None:  # an IMU cannot tell constant speed from rest; the fixes can (issue 4)
+        sigma_m = np.sqrt(np.diagonal(gnss.cov_n, axis1=1, axis2=2))
+        moving = preprocess.moving_intervals_by_gnss(static, gnss.t_s, gnss.pos_n, sigma_m)
+        info["static_intervals_moving_by_gnss_s"] = [[float(a), float(b)] for a, b in (static[i] for i in moving)]
+        static = [iv for i, iv in enumerate(static) if i not in moving]
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
     input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
                                          src)  # issue 8
@@ -454,17 +459,28 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
              "odometer_gross_errors": info.get("odometer_gross_errors")}
     problem, survey = _prepare_total_stations(pipeline, log, problem, say)
     timings["preprocess_s"] = time.perf_counter() - tic
-    res = smooth(problem, say)
-    timings.update(res.timings_s)
-    tic = time.perf_counter()
-    say("writing the trajectory at the output rate")
-    dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                    res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                    geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
+    sm = cfg.smoother
+    duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
+    if sm.chunk_s is not None and duration_s > sm.chunk_s + sm.overlap_s:
+        if problem.prisms is not None:  # station correction states are not handed over between chunks
+            raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
+                              f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
+                              f"{np.ceil(duration_s):.0f} (or null)")
+        from .fusion.chunks import smooth_in_chunks  # long runs: memory bounded by the chunk
+        res, dense = smooth_in_chunks(problem, sm.chunk_s, sm.overlap_s, every, say)
+        tic, table_every = time.perf_counter(), 1  # dense is already at the output rate
+    else:
+        res = smooth(problem, say)
+        tic, table_every = time.perf_counter(), every
+        dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
+                        res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
+                        geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
+    timings.update(res.timings_s)
+    say("writing the trajectory at the output rate")
     chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-    table = trajectory_table(dense, res, chainage, every)
+    table = trajectory_table(dense, res, chainage, table_every)
     metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
                                "imu_samples": int(problem.imu.t_s.size),
                                "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),

@@ -164,11 +164,19 @@ class SmootherSettings(_Strict):
     """Gauss-Newton iterations (stop when the cost falls by less than ``relative_tolerance``)
     and the spacing of the marginal covariances behind the sigma columns.
 
-    The whole run is solved as one batch; memory grows with the run's length (about 1.5 GB
-    for an hour at 500 Hz, benchmarks/speed.py). Overlapping chunks for longer runs are not
-    implemented yet.
+    ``chunk_s`` / ``overlap_s``: runs longer than ``chunk_s + overlap_s`` are smoothed in
+    overlapping chunks (fusion/chunks.py), so memory is bounded by the chunk; ``chunk_s: null``
+    solves any run as one batch (memory grows with its length: about 1.5 GB an hour at 500 Hz).
     """
 
     max_iterations: int = Field(10, ge=1)
     relative_tolerance: float = Field(1e-7, gt=0)
     marginal_step_s: float = Field(1.0, gt=0)
+    chunk_s: float | None = Field(3600.0, ge=60.0)
+    overlap_s: float = Field(120.0, gt=0)
+
+    @model_validator(mode="after")
+    def _overlap_inside_chunk(self) -> "SmootherSettings":
+        if self.chunk_s is not None and self.overlap_s >= self.chunk_s:
+            raise ValueError(f"overlap_s ({self.overlap_s:g}) must be shorter than chunk_s ({self.chunk_s:g})")
+        return self

@@ -22,7 +22,7 @@ from gtsam.symbol_shorthand import B, E, S, T, V, X
 
 from .. import geodesy
 from ..errors import FusionError
-from ..rotations import so3_exp
+from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
 from .preintegration import preintegrate
@@ -30,6 +30,9 @@ from .problem import FusionProblem, GnssFixes
 from ..registration.mislock import gate_prisms
 
 DEG = np.pi / 180.0
+#: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
+#: marginal sigma: holds the seam continuous
+JOIN_TIGHT = 1e-3
 
 
 @dataclass
@@ -63,6 +66,40 @@ class SmootherResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     station_states: np.ndarray | None = None  # (J,8) total-station corrections (factors.STATION_STATE_DIM)
     rejected_prism: list[dict] = field(default_factory=list)  # [{"station", "t_s", "reason", "nis"}]
+    hand_over: "HandOver | None" = None  # the state at ``hand_over_t_s`` (fusion/chunks.py)
+
+
+@dataclass
+class HandOver:
+    """The smoothed state at one keyframe of a chunk, which the next chunk starts from
+    (fusion/chunks.py).
+
+    k: keyframe index in the chunk; t_s [s]; R_nb (3,3); pos_n (3,) [m]; vel_n (3,) [m/s];
+    bias (6,) GTSAM order (accelerometer [m/s^2], gyro [rad/s]); scale [-] or None; the GNSS
+    error state of the last used fix at or before t_s: gnss_error_t_s [s] and gnss_error_n (3,)
+    [m], or None; cov (9,9) or (12,12): joint marginal covariance of [pose (GTSAM tangent:
+    rotation, position in ``b``), velocity, GNSS error] given the data up to t_s only (the next
+    chunk holds the data after it: no information counted twice); bias_var (6,) and scale_var
+    (or None) the marginal variances of the bias and scale there, on the same data.
+    """
+
+    k: int
+    t_s: float
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+    bias: np.ndarray
+    scale: float | None
+    gnss_error_t_s: float | None
+    gnss_error_n: np.ndarray | None
+    cov: np.ndarray
+    bias_var: np.ndarray
+    scale_var: float | None
+
+    @property
+    def alignment(self) -> Alignment:
+        yaw, pitch, roll = ypr_from_R(self.R_nb)
+        return Alignment(float(roll), float(pitch), float(yaw), "hand-over", 0.0)
 
 
 # --- keyframes and the initial estimate ----------------------------------------------------------
@@ -186,6 +223,8 @@ class _Builder:
         self.g = gtsam.NonlinearFactorGraph()
         self.builders: list = []
         self.counts: dict[str, int] = {}
+        self.join: HandOver | None = None
+        self.soft = _SoftJoin()
 
     def _count(self, name: str, n: int) -> None:
         self.counts[name] = self.counts.get(name, 0) + int(n)
@@ -195,12 +234,15 @@ class _Builder:
             self.g.add(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(int(self.bias_seg[k])), pim))
         n = self.pb.imu_noise
         sig = np.r_[[n.accel_bias_sigma_mps2] * 3, [n.gyro_bias_sigma_radps] * 3]
-        self.g.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(),
-                                                 gtsam.noiseModel.Diagonal.Sigmas(sig)))
-        n_seg = int(self.bias_seg[-1]) + 1
+        bias0 = gtsam.imuBias.ConstantBias()
         T = self.pb.keyframes.bias_segment_s
-        rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.r_[[n.accel_bias_rw_psd * T] * 3,
-                                                            [n.gyro_bias_rw_psd * T] * 3]))
+        rw_var = np.r_[[n.accel_bias_rw_psd * T] * 3, [n.gyro_bias_rw_psd * T] * 3]
+        if self.join is not None:  # the previous chunk's segment, then one random-walk step
+            bias0 = gtsam.imuBias.ConstantBias(self.join.bias[:3], self.join.bias[3:])
+            sig = np.sqrt(self.join.bias_var + rw_var)
+        self.g.add(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        n_seg = int(self.bias_seg[-1]) + 1
+        rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(rw_var))
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorConstantBias(B(m), B(m + 1), gtsam.imuBias.ConstantBias(), rw))
         self._count("imu", len(self.pims))
@@ -215,6 +257,19 @@ class _Builder:
         self.g.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(gtsam.Rot3(self.R0[0]), self.pos0[0]),
                                           gtsam.noiseModel.Diagonal.Sigmas(sig)))
         self._count("pose_prior", 1)
+
+    def join_priors(self) -> None:
+        """Instead of :meth:`anchor` in a chunk after the first: the pose and velocity of keyframe 0
+        held at the previous chunk's (continuity at the seam); for the marginals, the previous
+        chunk's marginal covariances instead (``self.soft``)."""
+        j = self.join
+        sigma = np.sqrt(np.diag(j.cov)) * JOIN_TIGHT
+        pose = gtsam.Pose3(gtsam.Rot3(j.R_nb), j.pos_n)
+        self.soft.remove += [self.g.size(), self.g.size() + 1]
+        self.g.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(sigma[:6])))
+        self.g.add(gtsam.PriorFactorVector(V(0), j.vel_n, gtsam.noiseModel.Diagonal.Sigmas(sigma[6:9])))
+        self.soft.keys, self.soft.cov = [X(0), V(0)], j.cov[:9, :9]
+        self._count("hand_over", 2)
 
     def zupt(self) -> None:
         st = self.pb.factors.zupt
@@ -266,7 +321,7 @@ class _Builder:
         for i in used:
             if not values.exists(E(int(i))):
                 values.insert(E(int(i)), np.zeros(3))
-        self.g.add(gtsam.PriorFactorVector(E(int(used[0])), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(corr)))
+        self._gnss_error_prior(int(used[0]), values, corr, tau_s)
         phi = np.exp(-np.diff(g.t_s[used]) / tau_s)[:, None] * np.ones(3)
         sigma = np.maximum(corr * np.sqrt(1.0 - phi**2), 1e-9)
         keys_i, keys_j = E(0) + used[:-1], E(0) + used[1:]
@@ -316,6 +371,25 @@ class _Builder:
         self._count("station_prior", len(pr.station_ids))
         return build
 
+    def _gnss_error_prior(self, first: int, values: gtsam.Values, corr: np.ndarray, tau_s: float) -> None:
+        """Prior of the first used fix's error: the Gauss-Markov process's, or in a later chunk its
+        step from the previous chunk's error state (tight for the solve, with that state's
+        marginal covariance for the marginals)."""
+        j = self.join
+        if j is None or j.gnss_error_n is None:
+            self.g.add(gtsam.PriorFactorVector(E(first), np.zeros(3), gtsam.noiseModel.Diagonal.Sigmas(corr)))
+            return
+        phi = np.exp(-abs(self.pb.gnss.t_s[first] - j.gnss_error_t_s) / tau_s)
+        mean = phi * j.gnss_error_n
+        step_var = corr**2 * (1.0 - phi**2)
+        values.update(E(first), mean)
+        tight = np.sqrt(np.maximum(step_var, np.diag(j.cov)[9:] * JOIN_TIGHT**2))
+        self.soft.remove.append(self.g.size())
+        self.g.add(gtsam.PriorFactorVector(E(first), mean, gtsam.noiseModel.Diagonal.Sigmas(tight)))
+        step = np.diag(np.r_[np.ones(9), phi * np.ones(3)])  # the Gauss-Markov step from the hand-over's error state
+        self.soft.keys = [X(0), V(0), E(first)]
+        self.soft.cov = step @ j.cov @ step + np.diag(np.r_[np.zeros(9), step_var])
+
     def odometer(self) -> None:
         odo, st = self.pb.odometer, self.pb.factors.odometer
         d = np.interp(self.t, odo.t_s, odo.distance_m)
@@ -334,9 +408,11 @@ class _Builder:
         self.builders.append(("odometer", build))
         self._count("odometer", K)
         n_seg = int(self.seg[-1]) + 1
-        self.g.add(gtsam.PriorFactorVector(S(0), np.zeros(1),
-                                           gtsam.noiseModel.Isotropic.Sigma(1, st.scale_sigma_ppm * 1e-6)))
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
+        scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
+        if self.join is not None and self.join.scale is not None:  # the previous chunk's, then one step
+            scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
+        self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
@@ -476,10 +552,9 @@ def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
         return R_inv @ R_inv.T
 
 
-def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
+def _marginal_sigmas(tree: gtsam.GaussianBayesTree, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
                      step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
-    tree = _eliminate(_linearize(G, values, with_scale))
     sel = np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
     state = _State.of(values, with_scale)
     sig_pos = np.empty((sel.size, 3))
@@ -493,9 +568,103 @@ def _marginal_sigmas(G: _Graph, values: gtsam.Values, with_scale: bool, t_key: n
     return t_key[sel], sig_pos, sig_att
 
 
-def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None) -> SmootherResult:
+@dataclass
+class _SoftJoin:
+    """For the marginals of a chunk after the first: the tight hand-over priors (graph indices)
+    give way to one joint prior of the previous chunk's marginal covariance (keys, cov)."""
+
+    remove: list[int] = field(default_factory=list)
+    keys: list[int] = field(default_factory=list)
+    cov: np.ndarray | None = None
+
+    def copy(self) -> "_SoftJoin":
+        return _SoftJoin(list(self.remove), list(self.keys), self.cov)
+
+
+def _marginal_graph(G: _Graph, values: gtsam.Values, with_scale: bool, soft: _SoftJoin) -> gtsam.GaussianFactorGraph:
+    """The linearised graph for the marginals (with the soft hand-over prior, see :class:`_SoftJoin`)."""
+    if not soft.keys:
+        return _linearize(G, values, with_scale)
+    graph = gtsam.NonlinearFactorGraph(G.graph)
+    for i in soft.remove:
+        graph.remove(i)
+    gfg = _linearize(_Graph(graph, G.builders, G.counts, G.gnss), values, with_scale)
+    A = np.linalg.cholesky(np.linalg.inv(soft.cov)).T  # A^T A = information; b: zero at the estimate
+    d = np.cumsum([0, 6, 3, 3][:len(soft.keys) + 1])
+    blocks = [item for j, key in enumerate(soft.keys) for item in (key, A[:, d[j]:d[j + 1]])]
+    gfg.add(gtsam.JacobianFactor(*blocks, np.zeros(A.shape[0]), gtsam.noiseModel.Unit.Create(A.shape[0])))
+    return gfg
+
+
+def _past_graph(gfg: gtsam.GaussianFactorGraph, k: int, t_key: np.ndarray, bias_seg: np.ndarray,
+                seg: np.ndarray | None, gnss_t_s: np.ndarray | None) -> gtsam.GaussianFactorGraph:
+    """The factors of ``gfg`` that involve only states up to keyframe ``k`` (the data before it)."""
+    last = {ord("x"): k, ord("v"): k, ord("b"): int(bias_seg[k]), ord("s"): int(seg[k]) if seg is not None else -1}
+    past = gtsam.GaussianFactorGraph()
+    for i in range(gfg.size()):
+        f = gfg.at(i)
+        if f is None:
+            continue
+        ok = True
+        for key in f.keys():
+            sym = gtsam.Symbol(key)
+            c, n = sym.chr(), sym.index()
+            if (c == ord("e") and gnss_t_s[n] > t_key[k] + 1e-9) or (c != ord("e") and n > last[c]):
+                ok = False
+                break
+        if ok:
+            past.push_back(f)
+    return past
+
+
+def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -> np.ndarray:
+    """Joint marginal covariance (sum of dims, square) of ``keys`` (in that order) by QR: every
+    other variable eliminated first (COLAMD), the marginal Bayes net ``R x = d`` of the keys
+    inverted. Unlike the Bayes tree's per-key marginals (Cholesky of shortcuts), this stays
+    valid for the velocities of the stiff graphs here (those came out with zero or 1 m/s sigmas)."""
+    full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, keys)
+    others = gtsam.Ordering()
+    for i in range(full.size() - len(keys)):
+        others.push_back(full.at(i))
+    R, _ = gfg.marginalMultifrontalBayesNet(gtsam.Ordering(keys), others, gtsam.EliminateQR).matrix()
+    R_inv = np.linalg.inv(R)
+    return R_inv @ R_inv.T
+
+
+def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
+               k: int, bias_seg: np.ndarray, seg: np.ndarray | None, gnss, used: np.ndarray) -> HandOver:
+    """The state at keyframe ``k`` and its marginal covariances (see :class:`HandOver`)."""
+    state = _State.of(values, with_scale)
+    bias = values.atConstantBias(B(int(bias_seg[k]))).vector()
+    keys = [X(k), V(k)]
+    e_t = e = None
+    if gnss is not None and used.size:
+        earlier = used[gnss.t_s[used] <= t_key[k] + 1e-9]
+        if earlier.size and values.exists(E(int(earlier[-1]))):
+            i = int(earlier[-1])
+            e_t, e = float(gnss.t_s[i]), values.atVector(E(i)).copy()
+            keys.append(E(i))
+    d = 3 * len(keys) + 3  # pose, velocity (, GNSS error)
+    keys.append(B(int(bias_seg[k])))
+    if with_scale:
+        keys.append(S(int(seg[k])))
+    past = _past_graph(gfg, k, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None)
+    cov = joint_marginal_covariance(past, keys)
+    var = np.diag(cov)
+    return HandOver(k, float(t_key[k]), state.R[k].copy(), state.p[k].copy(), state.v[k].copy(), bias,
+                    float(state.s[seg[k]]) if with_scale else None, e_t, e, cov[:d, :d], var[d:d + 6],
+                    float(var[d + 6]) if with_scale else None)
+
+
+def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
+           hand_over_t_s: float | None = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
-    cannot determine a trajectory."""
+    cannot determine a trajectory.
+
+    For overlapping chunks (fusion/chunks.py): ``join`` is the previous chunk's state at this
+    chunk's first sample (replaces the alignment and the anchor); with ``hand_over_t_s`` the
+    result carries the state at the keyframe nearest to that time (``SmootherResult.hand_over``).
+    """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
     tic = time.perf_counter()
@@ -508,7 +677,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     t_key = imu.t_s[key_idx]
     static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
     init_problem = _with_prism_fixes(problem) if gnss is None and problem.prisms is not None else problem
-    alignment = _alignment(init_problem)
+    alignment = join.alignment if join is not None else _alignment(init_problem)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
     say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
     gravity0 = geodesy.gravity_n(np.zeros((t_key.size, 3)), problem.origin)
@@ -516,13 +685,15 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     timings["preintegrate_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
-    R0 = _chain_rotations(alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
+    R0 = _chain_rotations(join.R_nb if join is not None else alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
     if alignment.epoch == "end":  # aligned on the static period at the end: chain back to the start
         R0 = _chain_rotations(back_to_start(R0, alignment.R_nb, omega_ie_n, t_key[-1] - t_key[0]), pims,
                               np.diff(t_key), omega_ie_n)
     pos0, vel0 = initial_states(init_problem if gnss is not None or problem.prisms is not None
                                 else _without_gnss(problem), t_key, R0, static,
                                 PRISM_INIT_MEDIAN if gnss is None and problem.prisms is not None else 0)
+    if join is not None and gnss is None and problem.prisms is None:
+        pos0 += join.pos_n - pos0[0]
     if fs.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity
         g_n = geodesy.gravity_n(pos0, problem.origin)
@@ -534,6 +705,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
     bias_seg[-1] = bias_seg[-2]
     b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg, bias_seg)
+    b.join = join
     values = gtsam.Values()
     for k in range(t_key.size):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
@@ -543,9 +715,18 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if with_scale:
         for m in range(int(seg[-1]) + 1):
             values.insert(S(m), np.zeros(1))
+    if join is not None:
+        values.update(X(0), gtsam.Pose3(gtsam.Rot3(join.R_nb), join.pos_n))
+        values.update(V(0), join.vel_n)
+        values.update(B(0), gtsam.imuBias.ConstantBias(join.bias[:3], join.bias[3:]))
+        if with_scale and join.scale is not None:
+            values.update(S(0), np.array([join.scale]))
     b.imu()
     prisms = problem.prisms if fs.total_stations.enabled else None
-    b.anchor(absolute=gnss is not None or prisms is not None)
+    if join is not None:
+        b.join_priors()
+    else:
+        b.anchor(absolute=gnss is not None or prisms is not None)
     if fs.zupt.enabled:
         b.zupt()
     if fs.nhc.enabled:
@@ -554,7 +735,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         b.odometer()
     if problem.inclinometer is not None and fs.inclinometer.enabled:
         b.inclinometer()
-    base_graph, base_builders, base_counts = b.g, list(b.builders), dict(b.counts)
+    base_graph, base_builders, base_counts, base_soft = b.g, list(b.builders), dict(b.counts), b.soft.copy()
     timings["build_s"] = time.perf_counter() - tic
 
     used = np.zeros(0, np.int64)
@@ -571,7 +752,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     cost0 = None
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
-        b.g, b.counts, b.builders = graph, dict(base_counts), list(base_builders)
+        b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
         gnss_build = b.gnss(used, values) if gnss is not None and used.size else None
         prism_build = b.prisms(prism_used, values) if prisms is not None else None
         G = _Graph(graph, b.builders, b.counts, gnss_build)
@@ -605,7 +786,13 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     timings["solve_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
-    sig_t, sig_pos, sig_att = _marginal_sigmas(G, values, with_scale, t_key, problem.smoother.marginal_step_s)
+    gfg = _marginal_graph(G, values, with_scale, b.soft)
+    tree = _eliminate(gfg)
+    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, values, with_scale, t_key, problem.smoother.marginal_step_s)
+    hand_over = None
+    if hand_over_t_s is not None:
+        k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
+        hand_over = _hand_over(gfg, values, with_scale, t_key, k, bias_seg, seg, gnss, used)
     timings["marginals_s"] = time.perf_counter() - tic
     state = _State.of(values, with_scale)
     biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
@@ -613,8 +800,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(cost),
                           dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
-                          state.ts if prisms is not None else None,
-                          sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])))
+                          station_states=state.ts if prisms is not None else None,
+                          rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
+                          hand_over=hand_over)
 
 
 #: prism readings over which the initial shift onto them is median-filtered (30 s at 10 Hz: a

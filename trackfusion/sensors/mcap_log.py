@@ -453,9 +453,15 @@ class _Cursor:
         return out
 
 
+#: payloads of a channel decoded at once while the file is scanned (bounds the memory of a read
+#: to the decoded arrays: the raw JSON text of a long log would take ~20 times more)
+_DECODE_BATCH = 50_000
+
+
 @dataclass
 class _RawChannel:
-    """A channel as found in the file, with its messages' times (list of uint64 arrays) and payloads."""
+    """A channel as found in the file, with its messages' times (list of uint64 arrays), the
+    payloads not yet decoded, the decoded field batches and the first invalid record found."""
 
     topic: str
     schema_id: int
@@ -463,6 +469,29 @@ class _RawChannel:
     times: list[np.ndarray] = field(default_factory=list)
     payloads: list[bytes] = field(default_factory=list)
     count: int = 0
+    batches: list[dict[str, np.ndarray]] = field(default_factory=list)
+    decoded: int = 0
+    bad: "_Bad | None" = None
+
+    def decode_pending(self, schema: str) -> None:
+        """Decode the pending payloads into a field batch (after the first invalid record, only
+        count them: that record is what will be reported)."""
+        if self.bad is None:
+            try:
+                self.batches.append(_decode_fields(self.payloads, schema))
+            except _Bad as bad:
+                self.bad, self.batches = _Bad(self.decoded + bad.index, bad.reason), []
+        self.decoded += len(self.payloads)
+        self.payloads = []
+
+    def fields(self, schema: str) -> dict[str, np.ndarray]:
+        """Every decoded field of the channel; raises _Bad for its first invalid record."""
+        if self.payloads or not self.batches:
+            self.decode_pending(schema)
+        if self.bad is not None:
+            raise self.bad
+        batches, self.batches = self.batches, []
+        return {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
 
 
 @dataclass
@@ -524,6 +553,12 @@ class _Scan:
             ch.times.append(hdr["log_time"][sel])
             idx = np.flatnonzero(sel).tolist()
             ch.payloads.extend(data[starts[i]:stops[i]] for i in idx)
+            if len(ch.payloads) >= _DECODE_BATCH:
+                try:
+                    schema = _channel_schema(self, ch)
+                except _Bad:
+                    continue  # a channel problem: reported by read_log after the scan
+                ch.decode_pending(schema)
         self.n_messages += len(offsets)
 
     def readable(self) -> str:
@@ -1067,7 +1102,7 @@ def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     except _Bad as bad:
         problems.append(bad)
     try:
-        fields = _decode_fields(ch.payloads, schema)
+        fields = ch.fields(schema)
     except _Bad as bad:
         problems.append(bad)
     if problems:

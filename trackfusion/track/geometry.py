@@ -428,9 +428,8 @@ def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gaug
         return None
     tf = problem.trolley
     trolley = TrolleyGeometry(tf.R_vb, tf.lever_arm_imu_v, tf.wheelbase_m, cfg.trolley.reference_rail)
-    i0 = int(res.key_idx[0])
-    n = dense.t_s.size
-    gyro = problem.imu.gyro_radps[i0:i0 + n]
+    # the IMU samples of the dense times (every sample, or every k-th one after chunked smoothing)
+    gyro = problem.imu.gyro_radps[np.searchsorted(problem.imu.t_s, dense.t_s)]
     bias = np.column_stack([np.interp(dense.t_s, res.t_s, res.gyro_bias_radps[:, k]) for k in range(3)])
     pitch_rate = pitch_rate_v(dense.R_nb, gyro, bias, geodesy.earth_rate_n(problem.origin), tf.R_vb)
     design = load_design(pipeline.path(cfg.inputs.design)) if cfg.inputs.design else None

@@ -1,0 +1,95 @@
+"""Benchmark: relative accuracy at 5 m across chunk joins against inside the chunks.
+
+Usage: python benchmarks/chunk_seams.py [--seeds 1 2 3]   (after benchmarks/accuracy.py, which
+leaves the batch run ``out-gnss-nhc-odometer`` and the run in 600 s chunks ``out-full_600schunks``
+of each ``open-track-gnss`` seed under ``$TMPDIR/trackfusion-bench``.)
+For every moving sample, the error (estimate minus truth) 5 m of travel further minus the error
+there, lateral and vertical; RMS over the pairs straddling a join, over those starting within
+30 s of a join, and over the rest, for the chunked and the batch run. A seam shows as a larger
+RMS across the joins in the chunked run than in the batch run over the same pairs.
+Writes benchmarks/results/chunk_seams.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results" / "chunk_seams.json"
+CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
+RUNS = {"chunked": "out-full_600schunks", "batch": "out-gnss-nhc-odometer"}
+CHUNK_S, OVERLAP_S, L_M = 600.0, 120.0, 5.0
+
+
+def _errors(sim: Path, name: str, truth: dict) -> tuple[np.ndarray, np.ndarray]:
+    from trackfusion.evaluation.errors_series import hermite_interpolate
+    from trackfusion.sensors.fileio import read_csv_table
+    tab = read_csv_table(sim / name / "trajectory.csv")
+    pos = np.column_stack([truth[c] for c in ("e_m", "n_m", "u_m")])
+    vel = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
+    est = np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")])
+    return tab["t_s"], est - hermite_interpolate(truth["t_s"], pos, vel, tab["t_s"])
+
+
+def pairs(t_s: np.ndarray, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, j): j the first sample L_M further along the same run (faster than 0.5 m/s)."""
+    v = np.gradient(s_m, t_s)
+    out_i, out_j = [], []
+    for sign in (1.0, -1.0):
+        edges = np.diff(np.r_[0, (sign * v > 0.5).astype(int), 0])
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            ss = sign * s_m[a:b]
+            k = np.searchsorted(ss, ss + L_M)
+            ok = k < ss.size
+            out_i.append(a + np.flatnonzero(ok))
+            out_j.append(a + k[ok])
+    return np.concatenate(out_i), np.concatenate(out_j)
+
+
+def seed_figures(seed: int) -> dict:
+    from trackfusion.fusion.chunks import join_times
+    from trackfusion.sensors.fileio import read_csv_table
+    sim = CACHE / f"open-track-gnss-{seed}"
+    truth = read_csv_table(sim / "truth.csv")
+    errs = {k: _errors(sim, name, truth) for k, name in RUNS.items()}
+    t = errs["chunked"][0]
+    i, j = pairs(t, np.interp(t, truth["t_s"], truth["chainage_m"]))
+    joins = join_times(t[0], t[-1], CHUNK_S, OVERLAP_S)
+    straddle = np.zeros(i.size, bool)
+    near = np.zeros(i.size, bool)
+    for tj in joins:
+        straddle |= (t[i] < tj) & (t[j] > tj)
+        near |= np.abs(t[i] - tj) < 30.0
+    # lateral and vertical: the open-track line runs east (along e), so n is lateral
+    out = {"seed": seed, "joins_s": joins.tolist(), "pairs": {"straddling": int(straddle.sum()),
+                                                             "within_30s": int(near.sum()), "elsewhere": int((~near).sum())}}
+    for k, (_, e) in errs.items():
+        d = (e[j] - e[i])[:, 1:] * 1e3
+        for label, sel in (("straddling", straddle), ("within_30s", near), ("elsewhere", ~near)):
+            rms = np.sqrt(np.mean(d[sel] ** 2, axis=0))
+            out[f"{k}_{label}_lateral_mm"], out[f"{k}_{label}_vertical_mm"] = float(rms[0]), float(rms[1])
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    args = ap.parse_args()
+    rows = [seed_figures(s) for s in args.seeds]
+    print(f"RMS of 5 m error differences [mm], lateral / vertical; chunks of {CHUNK_S:g} s, overlap {OVERLAP_S:g} s")
+    for r in rows:
+        cells = "  ".join(f"{label}: chunked {r[f'chunked_{label}_lateral_mm']:.3f}/{r[f'chunked_{label}_vertical_mm']:.3f}"
+                          f" batch {r[f'batch_{label}_lateral_mm']:.3f}/{r[f'batch_{label}_vertical_mm']:.3f}"
+                          for label in ("straddling", "within_30s", "elsewhere"))
+        print(f"seed {r['seed']} ({len(r['joins_s'])} joins): {cells}")
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(json.dumps({"chunk_s": CHUNK_S, "overlap_s": OVERLAP_S, "L_m": L_M, "seeds": rows}, indent=2) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()

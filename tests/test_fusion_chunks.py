@@ -1,0 +1,114 @@
+"""Overlapping chunks (fusion/chunks.py): no seam.
+
+One short noisy open-track survey (200 s) is smoothed as one batch and in chunks of 60 s
+with 30 s overlap (joins at 60 s and 180 s while moving at 3 and 2 m/s, and at 120 s during a
+stop). At the joins:
+
+* continuity: the second difference of the 100 Hz position (and the first difference of the
+  attitude) across each join is no larger than anywhere else in its neighbourhood (a jump of
+  1 um would show: the motion's own second difference is ~0.04 um at 100 Hz here);
+* relative accuracy: the 5 m error differences (error at t + 5 m of travel minus error at t),
+  lateral and vertical, of the chunked solution differ from the batch's no more across the
+  joins than inside the chunks, and their RMS across the joins is the batch's;
+* the sigmas are the batch's (a 200 s run is too short for the consistency statistic: it holds
+  less than one draw of the 300 s correlated GNSS error).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from trackfusion.evaluation.errors_series import hermite_interpolate
+from trackfusion.fusion.chunks import join_times
+from trackfusion.pipeline import parse_pipeline, run
+from trackfusion.rotations import R_from_quat, so3_log
+from trackfusion.sensors.fileio import read_csv_table
+from trackfusion.simulation.scenarios import simulate_to_dir
+
+SHORT = ["motion.passes=1",
+         "motion.segments=[{hold_s: 30}, {move_to_m: 260, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
+         " {move_to_m: 120, speed_mps: 2, accel_mps2: 0.4}]"]
+CHUNK_S, OVERLAP_S = 60.0, 30.0
+
+
+def _run(d, chunk_s):
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S)
+    return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("chunks")
+    simulate_to_dir("open-track-gnss", d, seed=6, overrides=SHORT)
+    return d, _run(d, None), _run(d, CHUNK_S)
+
+
+def _errors(d, tab):
+    truth = read_csv_table(d / "truth.csv")
+    pos_t = np.column_stack([truth[c] for c in ("e_m", "n_m", "u_m")])
+    vel_t = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
+    ref = hermite_interpolate(truth["t_s"], pos_t, vel_t, tab["t_s"])
+    return np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")]) - ref, np.interp(tab["t_s"], truth["t_s"],
+                                                                                     truth["chainage_m"])
+
+
+def _joins(tab):
+    return join_times(tab["t_s"][0], tab["t_s"][-1], CHUNK_S, OVERLAP_S)
+
+
+def test_chunked_run_has_the_joins_and_the_same_rows(runs):
+    _, batch, chunked = runs
+    assert _joins(chunked.trajectory).size == 3
+    assert chunked.metrics["factors"]["hand_over"] == 2 * 3
+    np.testing.assert_array_equal(batch.trajectory["t_s"], chunked.trajectory["t_s"])
+
+
+def test_position_and_attitude_are_continuous_at_the_joins(runs):
+    _, _, chunked = runs
+    tab = chunked.trajectory
+    p = np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")])
+    R = R_from_quat(np.column_stack([tab[c] for c in ("qw", "qx", "qy", "qz")]))
+    acc = np.linalg.norm(np.diff(p, 2, axis=0), axis=1)          # (N-2,) centred on samples 1..N-2
+    turn = np.linalg.norm(so3_log(np.swapaxes(R[:-1], -1, -2) @ R[1:]), axis=1)
+    for t_join in _joins(tab):
+        j = int(np.argmin(np.abs(tab["t_s"] - t_join)))
+        near = slice(j - 300, j + 300)
+        seam = slice(j - 3, j + 2)
+        assert np.max(acc[seam]) <= np.max(acc[near][np.r_[:290, 310:600]]) + 1e-7, t_join
+        assert np.max(turn[seam]) <= np.max(turn[near][np.r_[:290, 310:600]]) + 1e-8, t_join
+
+
+def test_relative_accuracy_across_joins_equals_inside(runs):
+    """The track runs east: n is lateral, u vertical. The chunked solution differs from the batch
+    one (each chunk sees less data) by as much inside the chunks as across the joins: a seam
+    would add to the pairs straddling a join."""
+    d, batch, chunked = runs
+    err_c, s = _errors(d, chunked.trajectory)
+    err_b, _ = _errors(d, batch.trajectory)
+    t = chunked.trajectory["t_s"]
+    ahead = np.searchsorted(s, s + 5.0)  # forward runs: first sample 5 m further
+    ok = (ahead < s.size) & (np.gradient(s, t) > 0.5)
+    i = np.flatnonzero(ok)
+    i = i[np.abs(s[ahead[i]] - s[i] - 5.0) < 0.05]
+    j = ahead[i]
+    d_c, d_b = (err_c[j] - err_c[i])[:, 1:], (err_b[j] - err_b[i])[:, 1:]  # lateral, vertical [m]
+    straddle = np.zeros(i.size, bool)
+    for t_join in _joins(chunked.trajectory):
+        straddle |= (t[i] < t_join) & (t[j] > t_join)
+    assert np.count_nonzero(straddle) > 100 and np.count_nonzero(~straddle) > 1000
+    diff = np.abs(d_c - d_b)
+    assert np.all(np.max(diff[straddle], axis=0) <= 1.5 * np.max(diff[~straddle], axis=0) + 1e-5)
+    rms = lambda x: np.sqrt(np.mean(x**2, axis=0))  # noqa: E731
+    assert np.all(rms(d_c[straddle]) <= 1.5 * rms(d_b[straddle]) + 2e-5)
+
+
+def test_chunked_sigmas_equal_the_batch_ones(runs):
+    """The hand-over's past-only marginal gives the next chunk the information the batch has
+    (within 25 %; counting the overlap twice would shrink them, dropping it would swell them)."""
+    _, batch, chunked = runs
+    for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m"):
+        ratio = chunked.trajectory[c] / batch.trajectory[c]
+        assert 0.8 < ratio.min() and ratio.max() < 1.25, (c, ratio.min(), ratio.max())
