@@ -41,7 +41,7 @@ def main() -> None:
     from trackfusion.sensors.fused import write_fused_mcap
     from trackfusion.sensors.fileio import read_csv_table
     from trackfusion.sensors.importers import export_csv, import_log, import_to_mcap
-    from trackfusion.sensors.mcap_log import write_log
+    from trackfusion.sensors.mcap_log import read_log, write_log
     from trackfusion import geodesy
 
     figures: dict[str, float] = {}
@@ -67,7 +67,7 @@ def main() -> None:
             table = read_csv_table(run_dir / "trajectory.csv")
             o = metrics["origin"]
             timed("fused_mcap_demo", write_fused_mcap, Path(tmp) / "fused.mcap", table,
-                  geodesy.Origin(o["lat_deg"], o["lon_deg"], o["h_m"]), raw_log=run_dir.parent / "log.mcap")
+                  geodesy.Origin(o["lat_deg"], o["lon_deg"], o["h_m"]), raw=read_log(run_dir.parent / "log.mcap"))
             figures["fused_mcap_demo_mb"] = (Path(tmp) / "fused.mcap").stat().st_size / 1e6
     figures["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     for k, v in figures.items():

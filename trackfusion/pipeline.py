@@ -234,12 +234,8 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> t
     was lost (reported and listed in ``faults.truncated_log``)."""
     from .sensors.mcap_log import read_log_with_damage
     cfg = pipeline.config
-    topics = ["/imu", "/odometer", "/gnss", "/inclinometer", "/gauge"]
-    if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is not None:
-        from .sensors.schemas import TOTAL_STATION_PREFIX
-        topics += [TOTAL_STATION_PREFIX + sid for sid in cfg.sensors.total_stations.stations]
-    path = pipeline.path(cfg.inputs.log)
-    log, damage = read_log_with_damage(path, topics=topics, allow_truncated=cfg.inputs.allow_truncated)
+    path = pipeline.path(cfg.inputs.log)  # every topic: the fusion's, and fused.mcap carries them all
+    log, damage = read_log_with_damage(path, allow_truncated=cfg.inputs.allow_truncated)
     if damage is not None:
         readable = ", ".join(f"{k} {v}" for k, v in damage["records_readable"].items()) or "no records"
         say(f"warning: {path} is damaged at byte {damage['byte']} ({damage['reason']}); running on the readable "
@@ -507,16 +503,16 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     metrics["run_time_s"] = timings["total_s"]
     say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
     files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every, geometry,
-                          raw_log=pipeline.path(cfg.inputs.log))
+                          raw=log)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     return RunResult(out, files, metrics, table, res)
 
 
 def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
                   cfg: PipelineConfig, dense: DenseTrajectory, every: int, geometry=None,
-                  raw_log: Path | None = None) -> list[str]:
+                  raw: SensorLog | None = None) -> list[str]:
     """Write every output into a staging folder beside ``out``, then move each file in
-    (``raw_log``: the input log, whose topics fused.mcap carries)."""
+    (``raw``: the input log as read, whose topics fused.mcap carries)."""
     from .sensors.fileio import read_csv_table, write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -532,8 +528,7 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
         # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
         if cfg.outputs.fused_mcap:
             rails = read_csv_table(stage / "geometry.csv") if geometry is not None else None
-            write_fused_mcap(stage / "fused.mcap", table, origin, raw_log=raw_log, geometry=rails,
-                             allow_truncated=cfg.inputs.allow_truncated)
+            write_fused_mcap(stage / "fused.mcap", table, origin, raw=raw, geometry=rails)
         if cfg.outputs.report:
             from .report.html import write_report
             write_report(stage, stage / "report.html", shown_dir=out)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import geodesy
-from .mcap_log import ExtraChannel, read_log, write_log
+from .mcap_log import ExtraChannel, write_log
 from .types import SensorLog
 
 #: Most points per drawn line (traces are decimated evenly to this).
@@ -180,13 +180,12 @@ RAIL_COLUMNS = tuple(f"{side}_{a}_m" for side in ("left", "right") for a in "enu
 
 
 def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geodesy.Origin,
-                     max_rate_hz: float = 10.0, raw_log: str | Path | None = None,
-                     geometry: dict[str, np.ndarray] | None = None, allow_truncated: bool = False) -> None:
+                     max_rate_hz: float = 10.0, raw: SensorLog | None = None,
+                     geometry: dict[str, np.ndarray] | None = None) -> None:
     """Write ``fused.mcap`` (module docstring): the trajectory table (trajectory.csv columns), the
-    rails when ``geometry`` has the rail columns, the topics of ``raw_log`` when given (its
-    readable part with ``allow_truncated``)."""
+    rails when ``geometry`` has the rail columns, and the topics and metadata of the raw log
+    ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given."""
     extra = trajectory_channels(table, origin, max_rate_hz)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
-    raw = read_log(raw_log, allow_truncated=allow_truncated) if raw_log is not None else SensorLog()
-    write_log(path, raw, extra)
+    write_log(path, raw if raw is not None else SensorLog(), extra)
