@@ -750,6 +750,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     tic = time.perf_counter()
     iterations = 0
     cost0 = None
+    gating = gnss is not None or prisms is not None
+    rtol = problem.smoother.relative_tolerance
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
@@ -757,32 +759,34 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         prism_build = b.prisms(prism_used, values) if prisms is not None else None
         G = _Graph(graph, b.builders, b.counts, gnss_build)
         say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
-            + (f" (gating round {round_ + 1})" if gnss is not None or prisms is not None else ""))
+            + (f" (gating round {round_ + 1})" if gating else ""))
+        # a gating round need not converge to the last digit before its gate: the tolerance is
+        # tightened once the gate rejects nothing more (below)
         values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                                             problem.smoother.relative_tolerance, say)
+                                             max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
         iterations += its
         cost0 = c0 if cost0 is None else cost0
-        prism_done = True
+        newly_rejected = False
         if prism_build is not None:  # total stations (issue 5): gate, mis-lock runs
             prism_used, newly = gate_prisms(prism_build(_State.of(values, with_scale)), prism_used, prisms,
                                             fs.total_stations)
             rejected_prism += newly
-            prism_done = not newly
-        if gnss_build is None:
-            if prism_done:
-                break
-            continue
-        nis = _gnss_nis(G, values, with_scale)
-        bad = nis > fs.gnss.gate_chi2
-        if not np.any(bad):
-            if prism_done:
-                break
-            continue
-        for i, q in zip(used[bad], nis[bad]):
-            rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
-            if values.exists(E(int(i))):
-                values.erase(E(int(i)))
-        used = used[~bad]
+            newly_rejected = bool(newly)
+        if gnss_build is not None:
+            nis = _gnss_nis(G, values, with_scale)
+            bad = nis > fs.gnss.gate_chi2
+            for i, q in zip(used[bad], nis[bad]):
+                rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
+                if values.exists(E(int(i))):
+                    values.erase(E(int(i)))
+            used = used[~bad]
+            newly_rejected |= bool(np.any(bad))
+        if not newly_rejected:
+            if gating:  # the gate is settled: converge to the configured tolerance
+                values, its, _, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol,
+                                                    say)
+                iterations += its
+            break
     timings["solve_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -803,6 +807,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_states=state.ts if prisms is not None else None,
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
                           hand_over=hand_over)
+
+
+#: relative cost decrease at which a gating round stops iterating and applies its gate (the
+#: last round, whose gate rejects nothing, then goes on to ``smoother.relative_tolerance``)
+GATE_RELATIVE_TOLERANCE = 1e-4
 
 
 #: prism readings over which the initial shift onto them is median-filtered (30 s at 10 Hz: a
