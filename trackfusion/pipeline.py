@@ -350,25 +350,25 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
     """``time_sync``, ``registration``, ``rejected_prism`` and ``round_trip`` of metrics.json."""
     from .registration.survey import corrected_points, registration_report, round_trip
     fs = cfg.factors.total_stations
-    states = res.station_states
+    states = res.station_states if res.station_states is not None else np.zeros((len(survey.stations), 8))
     time_sync = {}
     for j, (sid, st) in enumerate(survey.stations.items()):
-        q = states[j] if states is not None else np.zeros(8)
+        q = states[j]
         entry = st.sync.to_json() if st.sync is not None else {"r_max": None, "lags_s": [], "r": []}
         entry.update(offset_s=st.offset_s + float(q[6]), drift_ppm=float(q[7]), offset_correlation_s=st.offset_s)
         time_sync[sid] = entry
     ids = list(survey.stations)
     rejected = []
     for r in res.rejected_prism:  # on the IMU clock with the refined clock offset and drift
-        q = states[ids.index(r["station"])] if states is not None else np.zeros(8)
+        q = states[ids.index(r["station"])]
         rejected.append({**r, "t_s": r["t_s"] - float(q[6]) - 1e-6 * float(q[7]) * r["t_s"]})
     out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": rejected}
     odo = problem.odometer
     if odo is not None:
-        out["registration"] = registration_report(survey, states, odo, fs.registration, problem.origin)
+        out["registration"] = registration_report(survey, res.station_states, odo, fs.registration, problem.origin)
         before_t, before_p = [], []
         for j, st in enumerate(survey.stations.values()):
-            t, p = corrected_points(st, states[j] if states is not None else np.zeros(8))
+            t, p = corrected_points(st, states[j])
             before_t.append(t)
             before_p.append(p)
         t = np.concatenate(before_t)
@@ -479,8 +479,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     table = trajectory_table(dense, res, chainage, table_every)
     metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
                                "imu_samples": int(problem.imu.t_s.size),
-                               "duration_s": float(problem.imu.t_s[-1] - problem.imu.t_s[0]),
-                               "trajectory_rate_hz": float(imu_rate / every),
+                               "duration_s": duration_s, "trajectory_rate_hz": float(imu_rate / every),
                                **_smoother_metrics(res, info),
                                "faults": faults.detected_faults(problem, res, found)}
     if survey is not None:
@@ -502,18 +501,16 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     metrics["timings_s"] = timings
     metrics["run_time_s"] = timings["total_s"]
     say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-    files = write_outputs(out, table, metrics, problem.origin, cfg, dense, every, geometry,
-                          raw=log)
+    files = write_outputs(out, table, metrics, problem.origin, cfg, geometry, raw=log)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     return RunResult(out, files, metrics, table, res)
 
 
 def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
-                  cfg: PipelineConfig, dense: DenseTrajectory, every: int, geometry=None,
-                  raw: SensorLog | None = None) -> list[str]:
+                  cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None) -> list[str]:
     """Write every output into a staging folder beside ``out``, then move each file in
     (``raw``: the input log as read, whose topics fused.mcap carries)."""
-    from .sensors.fileio import read_csv_table, write_csv_table, write_json_atomic
+    from .sensors.fileio import write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
@@ -527,8 +524,8 @@ def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin
                             fmt="%.12g", extra=geometry.sidecar())
         # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
         if cfg.outputs.fused_mcap:
-            rails = read_csv_table(stage / "geometry.csv") if geometry is not None else None
-            write_fused_mcap(stage / "fused.mcap", table, origin, raw=raw, geometry=rails)
+            write_fused_mcap(stage / "fused.mcap", table, origin, raw=raw,
+                             geometry=geometry.table if geometry is not None else None)
         if cfg.outputs.report:
             from .report.html import write_report
             write_report(stage, stage / "report.html", shown_dir=out)
