@@ -27,9 +27,8 @@ from trackfusion.rotations import R_from_quat, so3_log
 from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.scenarios import simulate_to_dir
 
-SHORT = ["motion.passes=1",
-         "motion.segments=[{hold_s: 30}, {move_to_m: 260, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
-         " {move_to_m: 120, speed_mps: 2, accel_mps2: 0.4}]"]
+from surveys import SHORT_OPEN_TRACK as SHORT
+
 CHUNK_S, OVERLAP_S = 60.0, 30.0
 
 
