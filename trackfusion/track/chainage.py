@@ -60,7 +60,8 @@ def regrid(tr: RailTraces, new_chainage_m: np.ndarray, step_m: float) -> RailTra
         return np.column_stack([np.interp(grid, s, v[:, i]) for i in range(v.shape[1])]) if v.ndim == 2 \
             else np.interp(grid, s, v)
 
-    return RailTraces(grid, at(tr.left_n), at(tr.right_n), at(tr.gauge_m), at(tr.t_s), tr.direction)
+    return RailTraces(grid, at(tr.left_n), at(tr.right_n), at(tr.gauge_m), at(tr.t_s), tr.direction,
+                      tr.gauge_filter)
 
 
 def curvature_functions(design: DesignAlignment, step_m: float = 0.5) -> list[tuple[float, float]]:

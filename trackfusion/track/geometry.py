@@ -67,6 +67,8 @@ class GeometryConfig(_Strict):
     nominal_gauge_m: float = Field(1.435, gt=0)
     min_speed_mps: float = Field(0.05, gt=0)
     attitude_crossover_m: float | None = Field(100.0, gt=0)
+    gauge_filter: Literal["wiener", "box"] = "wiener"
+    gauge_sigma_mm: float | None = Field(None, ge=0)
     gauge_window_m: float = Field(0.25, gt=0)
     repeatability_chords_m: list[float] = Field(default_factory=lambda: [1.0, 10.0])
     repeatability_limits_mm: list[float] = Field(default_factory=lambda: [0.1, 1.0])
@@ -285,7 +287,8 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
     bases = sorted(set(cfg.twist_bases_m) | {c.length_m for c in checks if c.kind == "limit" and c.quantity == "twist"})
     traces = rail_traces(t_s, R_nb, pos_n, chainage_m, trolley, step_m, gauge_t_s, gauge_m, cfg.nominal_gauge_m,
                          cfg.min_speed_mps, min_length_m=max(1.0, 4 * step_m), crossover_m=cfg.attitude_crossover_m,
-                         gauge_window_m=max(cfg.gauge_window_m, step_m))
+                         gauge_window_m=max(cfg.gauge_window_m, step_m), gauge_filter=cfg.gauge_filter,
+                         gauge_sigma_m=None if cfg.gauge_sigma_mm is None else 1e-3 * cfg.gauge_sigma_mm)
     design_track = irr.design_track(design, cfg.nominal_gauge_m) if design is not None else None
     tables, used, design_s_all = [], [], []
     for tr in traces:
@@ -337,6 +340,7 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
         "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
+        "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
         "tolerance_table": tolerances[0] if tolerances else None,
         "exceedances": exceedances,
         "skipped_checks": skipped,

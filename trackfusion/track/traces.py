@@ -18,16 +18,19 @@ normal to the contact plane. With ``R_nv = R_nb R_vb^T`` and the IMU at ``lever_
 
 Each pass (a run in one direction between stops) is resampled on the chainage grid
 ``k * step_m`` (linear interpolation of the IMU-rate samples), so repeated passes line up.
+The gauge readings of each pass are smoothed along chainage by the Wiener smoother of
+:mod:`.gauge` (or averaged over a window, ``gauge_filter="box"``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ..errors import TrackGeometryError
+from .gauge import MIN_READINGS, fit_gauge_spectrum, smooth_gauge
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,8 @@ class Pass:
 class RailTraces:
     """Rail traces of one pass on the chainage grid: ``chainage_m`` (N,), ``left_n``, ``right_n``
     (N, 3) [m] in ``n``, ``gauge_m`` (N,) [m], ``t_s`` (N,) the time the trolley's origin was at
-    each chainage, ``direction`` (+1 increasing chainage)."""
+    each chainage, ``direction`` (+1 increasing chainage), ``gauge_filter`` how the gauge
+    readings were smoothed (empty: nominal gauge)."""
 
     chainage_m: np.ndarray
     left_n: np.ndarray
@@ -66,6 +70,7 @@ class RailTraces:
     gauge_m: np.ndarray
     t_s: np.ndarray
     direction: int
+    gauge_filter: dict = field(default_factory=dict)
 
     def rail(self, side: str) -> np.ndarray:
         return self.left_n if side == "left" else self.right_n
@@ -197,30 +202,49 @@ def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m
                       extra[keep, 1], direction)
 
 
+def gauge_along_pass(s_reading_m: np.ndarray, reading_m: np.ndarray, s_query_m: np.ndarray, method: str,
+                     window_m: float, sigma_m: float | None = None) -> tuple[np.ndarray, dict]:
+    """One pass's gauge readings (K,) at chainages s_reading_m (K,) [m], at s_query_m (M,) [m]:
+    the Wiener smoother (``method="wiener"``, :mod:`.gauge`; noise ``sigma_m`` from the spec or,
+    None, fitted) or the mean over ``window_m`` (``"box"``, :func:`box_mean`; also when the pass
+    has fewer than ``MIN_READINGS`` readings). Returns the values and what was done."""
+    if method == "wiener" and s_reading_m.size >= MIN_READINGS:
+        fit = fit_gauge_spectrum(s_reading_m, reading_m, sigma_m)
+        return smooth_gauge(s_reading_m, reading_m, s_query_m, fit), fit.to_json()
+    info = {"filter": "box", "window_m": float(window_m), "readings": int(s_reading_m.size)}
+    return box_mean(s_reading_m, reading_m, s_query_m, window_m), info
+
+
 def rail_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
                 trolley: TrolleyGeometry, step_m: float, gauge_t_s: np.ndarray | None = None,
                 gauge_reading_m: np.ndarray | None = None, nominal_gauge_m: float = 1.435,
                 min_speed_mps: float = 0.05, min_length_m: float = 1.0,
-                crossover_m: float | None = None, gauge_window_m: float | None = None) -> list[RailTraces]:
+                crossover_m: float | None = None, gauge_window_m: float | None = None,
+                gauge_filter: str = "wiener", gauge_sigma_m: float | None = None) -> list[RailTraces]:
     """Rail traces of every pass of a dense trajectory (module docstring); arrays as in
     :func:`pass_traces` over the whole run; the gauge reading (K,) at ``gauge_t_s`` (K,) is
-    averaged over ``gauge_window_m`` of chainage (default one step; :func:`box_mean`), or
-    ``nominal_gauge_m`` without it; ``crossover_m``: see :func:`refine_with_attitude`."""
+    smoothed per pass by :func:`gauge_along_pass` (``gauge_filter``, ``gauge_sigma_m`` [m],
+    ``gauge_window_m``, default one step), or ``nominal_gauge_m`` without it; ``crossover_m``:
+    see :func:`refine_with_attitude`."""
     passes = split_passes(t_s, chainage_m, min_speed_mps, min_length_m)
     if not passes:
         raise TrackGeometryError(f"the trajectory has no pass of at least {min_length_m:g} m in motion")
+    gauge = np.full(t_s.shape, float(nominal_gauge_m))
+    filters: list[dict] = [{} for _ in passes]
     if gauge_t_s is not None and gauge_t_s.size >= 2:
-        gauge = np.full(t_s.shape, np.nan)
         s_reading = np.interp(gauge_t_s, t_s, chainage_m)
-        for p in passes:
+        for k, p in enumerate(passes):
             inside = (gauge_t_s >= t_s[p.start]) & (gauge_t_s <= t_s[p.stop - 1])
             if np.count_nonzero(inside) < 2:
                 raise TrackGeometryError(f"no gauge readings between t = {t_s[p.start]:.1f} and {t_s[p.stop - 1]:.1f} s")
-            gauge[p.start:p.stop] = box_mean(s_reading[inside], gauge_reading_m[inside],
-                                             chainage_m[p.start:p.stop], gauge_window_m or step_m)
-    else:
-        gauge = np.full(t_s.shape, float(nominal_gauge_m))
-    return [pass_traces(t_s[p.start:p.stop], R_nb[p.start:p.stop], pos_n[p.start:p.stop],
-                        chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction,
-                        crossover_m)
-            for p in passes]
+            gauge[p.start:p.stop], filters[k] = gauge_along_pass(
+                s_reading[inside], gauge_reading_m[inside], chainage_m[p.start:p.stop], gauge_filter,
+                gauge_window_m or step_m, gauge_sigma_m)
+    out = []
+    for p, info in zip(passes, filters):
+        tr = pass_traces(t_s[p.start:p.stop], R_nb[p.start:p.stop], pos_n[p.start:p.stop],
+                         chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction,
+                         crossover_m)
+        tr.gauge_filter = info
+        out.append(tr)
+    return out
