@@ -4,8 +4,8 @@ Usage: python benchmarks/geometry.py [--seed 1] [--scenarios open-track-gnss bri
 
 Each scenario is simulated (cached under ``$TMPDIR/trackfusion-bench-geometry``) with a gauge
 sensor added (``--set gauge.rate_hz=50``: the other rail's alignment needs the gauge reading),
-fused with its generated pipeline (bridge-total-station: IMU + odometer + ZUPT + NHC, no prisms
-until total-station fusion lands), and its geometry computed by the pipeline's own
+fused with its generated pipeline (bridge-total-station: IMU + odometer + ZUPT + NHC + the two
+total stations' prisms), and its geometry computed by the pipeline's own
 ``geometry_for_run``. Each pass is compared with the truth at the same physical point (the
 truth chainage of the trolley at the time it passed the grid point). Figures:
 
@@ -53,29 +53,34 @@ GEOMETRY = {  # the geometry section each run uses
 STEP_M = {"open-track-gnss": 0.25, "bridge-total-station": 0.25, "fog-odometer": 0.01}
 
 
-def simulated(scenario: str, seed: int) -> Path:
-    out = CACHE / f"{scenario}-{seed}"
+def simulated(scenario: str, seed: int, cache: Path = CACHE) -> Path:
+    out = cache / f"{scenario}-{seed}"
     if not (out / "pipeline.yaml").is_file():
         subprocess.run([sys.executable, "-m", "trackfusion.cli", "simulate", scenario, "--out", str(out),
                         "--seed", str(seed), "--set", "gauge.rate_hz=50"], check=True)
     return out
 
 
-def run_geometry(folder: Path, scenario: str, gauge_filter: str = "wiener"):
-    """The pipeline's steps up to the geometry (as ``pipeline.run``), keeping the per-pass tables."""
+def run_geometry(folder: Path, scenario: str, gauge_filter: str = "wiener", geometry: dict | None = None,
+                 step_m: float | None = None, factors: dict | None = None):
+    """The pipeline's steps up to the geometry (as ``pipeline.run``), keeping the per-pass tables;
+    ``geometry``/``step_m`` default to this benchmark's for the scenario, ``factors`` overrides
+    entries of the generated pipeline's factors section. Returns (geometry, dense, chainage, problem)."""
     import yaml
     data = yaml.safe_load((folder / "pipeline.yaml").read_text())
-    data["geometry"] = {**GEOMETRY[scenario], "gauge_filter": gauge_filter}
-    data.setdefault("outputs", {})["geometry_step_m"] = STEP_M[scenario]
+    data["geometry"] = {**(GEOMETRY[scenario] if geometry is None else geometry), "gauge_filter": gauge_filter}
+    data.setdefault("outputs", {})["geometry_step_m"] = STEP_M[scenario] if step_m is None else step_m
+    data["factors"] = {**data.get("factors", {}), **(factors or {})}
     pl = P.parse_pipeline(data, str(folder / "pipeline.yaml"), folder)
-    log = P._read(pl)
+    log, _ = P._read(pl)
     problem, _ = P.build_problem(pl, log, lambda m: None)
+    problem, _ = P._prepare_total_stations(pl, log, problem, lambda m: None)
     res = smooth(problem, lambda m: None)
     dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
                     res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
                     geodesy.earth_rate_n(problem.origin))
     chainage = P.chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-    return geometry_for_run(pl, problem, res, dense, chainage, log.gauge), dense, chainage
+    return geometry_for_run(pl, problem, res, dense, chainage, log.gauge), dense, chainage, problem
 
 
 def truth_chainage(tab: dict, dense, chainage, truth: dict) -> np.ndarray:
@@ -214,12 +219,12 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     results: dict = {"seed": args.seed, "date": time.strftime("%Y-%m-%d"), "machine": "2 cores, shared by five helpers",
-                     "targets_mm": TARGET_MM, "bridge_note": "bridge-total-station fused without prisms "
-                     "(IMU + odometer + ZUPT + NHC); total-station fusion is issue 5", "scenarios": {}}
+                     "targets_mm": TARGET_MM, "bridge_note": "bridge-total-station fused with its generated "
+                     "pipeline: IMU + odometer + ZUPT + NHC + total-station prisms", "scenarios": {}}
     for sc in args.scenarios:
         folder = simulated(sc, args.seed)
         tic = time.perf_counter()
-        geo, dense, chainage = run_geometry(folder, sc, args.gauge_filter)
+        geo, dense, chainage, _ = run_geometry(folder, sc, args.gauge_filter)
         truth = read_csv_table(folder / "truth.csv")
         gtruth = read_csv_table(folder / "geometry_truth.csv")
         chord = CHORD[sc]
