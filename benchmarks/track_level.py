@@ -11,9 +11,12 @@ gauge + odometer; cached under ``$TMPDIR/trackfusion-bench-track-level``) gives 
    ``cross_level_mm``, from the smoothed attitude and the gauge reading), and, for what the
    factor adds, the same graph without it;
 2. seed 004's Kalman filter of the angle sensor and the gyro angle (eqs. 1-7, its Q and R);
-3. seed 004's weighted fusion (eqs. 8-18, weights from the data);
-4. the inclinometer alone;
-5. (not in the seed) a complementary filter of the inclinometer and the gyro rate, crossover 2 s.
+3. seed 004's weighted fusion (eqs. 8-18), weights from the data (its section III) and, as a
+   variant, from the R of its Kalman filter (10:1);
+4. the inclinometer alone, and the gyro angle alone;
+5. (not in the seed) a complementary filter of the inclinometer and the gyro rate, crossover
+   2 s; the inclinometer with its 0.5 s lag inverted; the factor graph with the inclinometer
+   factor at 1 mrad instead of the default 0.1 mrad.
 
 Baselines 2-5 use the logged inclinometer roll (time constant 0.5 s in the simulation), the
 gyro's x-axis rate (zeroed over the first static interval, seed eq. 23) and ``L`` = the gauge
@@ -49,6 +52,7 @@ CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench-track-level"
 SCENARIO = "track-level"
 STEP_M = 0.25
 COMPLEMENTARY_CROSSOVER_S = 2.0
+INCLINOMETER_TAU_S = 0.5   # the scenario's inclinometer time constant (its sensor spec)
 SEED_TABLE_2 = {"kalman_filter": 1.3054, "weighted_fusion": 1.4175,
                 "note": "seed 004 table 2, 'mean square error' of its field data, units not stated"}
 
@@ -72,13 +76,18 @@ def baselines(folder: Path, problem) -> dict[str, tuple[np.ndarray, np.ndarray, 
     z_gyro = np.interp(t, imu.t_s, z_gyro_imu)                          # the gyro angle at the inclinometer epochs
     L = np.interp(t, gauge.t_s, gauge.gauge_m)
     weighted = lb.seed_weighted_fusion(z_inc, z_gyro)
+    weighted_r = lb.seed_weighted_fusion(z_inc, z_gyro, variances=lb.SEED_R)
     comp_rate = np.interp(t, imu.t_s, rate_v - np.mean(rate_v[rest]))
     return {
         "seed_kalman": (t, cross_level_from_roll(lb.seed_kalman(z_inc, z_gyro), L),
                         {"R": list(lb.SEED_R), "Q": lb.SEED_Q, "steady_gain": lb.steady_state_gain().tolist()}),
         "seed_weighted_fusion": (t, cross_level_from_roll(weighted.angle_rad, L),
                                  {"weights": list(weighted.weights), "variances_rad2": list(weighted.variances)}),
+        "seed_weighted_fusion_seed_R": (t, cross_level_from_roll(weighted_r.angle_rad, L),
+                                        {"weights": list(weighted_r.weights), "variances": list(lb.SEED_R)}),
         "inclinometer_alone": (t, cross_level_from_roll(z_inc, L), {}),
+        "inclinometer_lag_inverted": (t, cross_level_from_roll(lb.inverse_first_order_lag(t, z_inc, INCLINOMETER_TAU_S), L),
+                                      {"time_constant_s": INCLINOMETER_TAU_S, "in_seed": False}),
         "gyro_alone": (t, cross_level_from_roll(z_gyro, L), {}),
         "complementary_filter": (t, cross_level_from_roll(lb.complementary_filter(t, z_inc, comp_rate,
                                                                                   COMPLEMENTARY_CROSSOVER_S), L),
@@ -94,9 +103,10 @@ def one_seed(seed: int) -> dict:
     geometry = {"chords_m": [10.0], "repeatability_chords_m": [], "repeatability_limits_mm": []}
     out: dict = {}
     points = None
-    for name, inc_on in (("factor_graph_inclinometer", True), ("factor_graph_without_inclinometer", False)):
+    for name, inc in (("factor_graph_inclinometer", True), ("factor_graph_without_inclinometer", False),
+                      ("factor_graph_inclinometer_sigma_1mrad", {"sigma_mrad": 1.0})):
         geo, dense, chainage, problem = run_geometry(folder, SCENARIO, geometry=geometry, step_m=STEP_M,
-                                                     factors={"inclinometer": inc_on})
+                                                     factors={"inclinometer": inc})
         errs, t_pts, s_pts = [], [], []
         for tab in geo.passes:
             s_true = truth_chainage(tab, dense, chainage, truth)
@@ -106,7 +116,7 @@ def one_seed(seed: int) -> dict:
             t_pts.append(tab["t_s"][ok])
             s_pts.append(s_true[ok])
         out[name] = _stats(np.concatenate(errs))
-        if inc_on:
+        if inc is True:
             points = (np.concatenate(t_pts), np.concatenate(s_pts))
             base_problem = problem
     t_pts, s_pts = points

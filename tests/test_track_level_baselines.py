@@ -93,3 +93,14 @@ def test_complementary_filter_transfer_at_its_crossover():
     assert amp(lb.complementary_filter(t, np.zeros(t.size), rate, T)) == pytest.approx(1 / np.sqrt(2), rel=0.01)
     both = lb.complementary_filter(t, theta, rate, T)
     assert np.abs(both[inner] - theta[inner]).max() < 0.01 * 1e-3
+
+
+def test_inverse_first_order_lag_undoes_the_simulated_inclinometer_lag():
+    from trackfusion.sensors.aiding import first_order_lag
+    t = DT * np.arange(5000)
+    ramp = np.clip((t - 20) * 1e-3, 0, 0.08)                  # a cant ramp, then constant
+    lagged = first_order_lag(ramp, DT, 0.5)
+    assert np.abs(lagged - ramp).max() > 4e-4                  # lag x rate = 0.5 mrad
+    back = lb.inverse_first_order_lag(t, lagged, 0.5, window_s=DT)
+    inner = (np.abs(t - 20) > 0.2) & (np.abs(t - 100) > 0.2)   # away from the kinks
+    assert np.abs(back - ramp)[inner].max() < 2e-5

@@ -23,7 +23,8 @@ as given, in the squared unit of the angle, and only their ratios matter):
   independent of each other and of the level): :func:`seed_weighted_fusion`.
 
 Not in the seed, for comparison: :func:`complementary_filter`, the frequency split the seed's
-table 1 describes (inclinometer below a crossover, gyro above).
+table 1 describes (inclinometer below a crossover, gyro above), and :func:`inverse_first_order_lag`,
+the angle sensor's slow response undone from its stated time constant.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 
 from ..errors import TrackGeometryError
@@ -142,3 +144,14 @@ def complementary_filter(t_s: np.ndarray, z_angle_sensor: np.ndarray, rate_radps
     u = a * np.asarray(rate_radps, dtype=float) * dt + (1 - a) * z
     y, _ = lfilter([1.0], [1.0, -a], u, zi=[a * z[0]])
     return y
+
+
+def inverse_first_order_lag(t_s: np.ndarray, z: np.ndarray, tau_s: float, window_s: float = 0.1) -> np.ndarray:
+    """Not in the seed: the input ``x = z + tau dz/dt`` (N,) of a first-order lag ``tau dz/dt = x - z``
+    from its output z (N,) at regular t_s (N,) [s], z first averaged over ``window_s`` (the
+    derivative amplifies what white noise the
+    averaging leaves by about ``tau / window``)."""
+    t = np.asarray(t_s, dtype=float)
+    dt = float(np.median(np.diff(t)))
+    zs = uniform_filter1d(np.asarray(z, dtype=float), max(1, int(round(window_s / dt))), mode="nearest")
+    return zs + tau_s * np.gradient(zs, t)
