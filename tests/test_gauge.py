@@ -106,3 +106,16 @@ def test_wiener_gauge_leaves_less_versine_error_than_the_box():
     # too few readings: the box mean, and said so
     _, info = gauge_along_pass(s[:20], g[:20], grid[:5], "wiener", 0.25)
     assert info["filter"] == "box"
+
+
+def test_long_waves_pass_when_the_short_waves_are_below_the_noise():
+    """A 44 m gauge wave and 0.1 mm noise, nothing else: the fit finds no short-wave signal,
+    the cut-off stops at MAX_CUTOFF_M and the long wave is kept (an uncapped fit would flatten it)."""
+    from trackfusion.track.gauge import MAX_CUTOFF_M
+    rng = np.random.default_rng(6)
+    s = _readings(500.0, 0.017)
+    wave = 1e-3 * np.sin(s / 7.0)
+    for sigma in (None, SIGMA):
+        est, info = gauge_along_pass(s, 1.435 + wave + SIGMA * rng.standard_normal(s.size), s, "wiener", 0.25, sigma)
+        assert info["cutoff_wavelength_m"] == MAX_CUTOFF_M
+        assert np.std(est - 1.435 - wave) < 0.2 * SIGMA

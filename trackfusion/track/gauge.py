@@ -25,8 +25,11 @@ whose transfer for readings ``d`` apart is the Wiener gain
 noise have equal density: shorter gauge waves are below the sensor's noise at this speed and
 are attenuated, longer ones pass (``H(2 lambda_c) = 0.94``). ``q`` and ``N0`` are fitted to each
 pass's own readings (Whittle likelihood of their periodogram); with ``sigma`` from the sensor
-spec only ``q`` is fitted. The fitted ``sigma`` is reported (a check of the spec) with
-``lambda_c``, so each pass states the resolution of its gauge.
+spec only ``q`` is fitted. The model is fitted at wavelengths below 5 m only, so ``lambda_c`` is
+capped at ``MAX_CUTOFF_M`` = 2.5 m (gain >= 0.94 at 5 m, >= 0.996 at 10 m): a gauge whose short
+waves are all below the noise keeps its long waves. The fitted ``sigma`` is reported (a check
+of the spec) with ``lambda_c``, so each pass states the resolution of its gauge. Readings are
+assumed regular in time (their spacing follows the speed).
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from ..errors import TrackGeometryError
 
 MIN_READINGS = 64          # fewer readings in a pass: too few for a spectrum, box mean instead
 FIT_MIN_WAVENUMBER = 0.2   # [cycles/m] the k^-4 model is fitted at wavelengths below 5 m
+MAX_CUTOFF_M = 2.5         # [m] so the filter acts only where it was fitted: gain >= 0.94 at 5 m
 
 
 @dataclass(frozen=True)
@@ -124,7 +128,7 @@ def fit_gauge_spectrum(s_m: np.ndarray, gauge_m: np.ndarray, sigma_m: float | No
     q = float(np.exp(p[0])) * scale
     n0 = float(np.exp(p[1])) * scale if sigma_m is None else sigma_m ** 2 * d
     cutoff = float(2 * np.pi * (n0 / q) ** 0.25) if q > 0 else np.inf
-    return GaugeFit(float(np.sqrt(n0 / d)), q, d, min(cutoff, 1e3), sigma_m is not None)
+    return GaugeFit(float(np.sqrt(n0 / d)), q, d, min(cutoff, MAX_CUTOFF_M), sigma_m is not None)
 
 
 def smooth_gauge(s_m: np.ndarray, gauge_m: np.ndarray, s_query_m: np.ndarray, fit: GaugeFit) -> np.ndarray:
@@ -132,7 +136,7 @@ def smooth_gauge(s_m: np.ndarray, gauge_m: np.ndarray, s_query_m: np.ndarray, fi
     readings gauge_m (K,) at s_m (K,): solved on a grid of ``min(5 cm, cutoff / 8)`` spanning
     the readings (linear interpolation between grid points; constant beyond the readings).
     The cut-off is at least four grid steps (an ideal sensor: nearly interpolation)."""
-    h = min(0.05, fit.cutoff_m / 8)
+    h = max(0.01, min(0.05, fit.cutoff_m / 8))
     grid = s_m.min() + h * np.arange(int(np.ceil(np.ptp(s_m) / h)) + 1)
     cutoff = max(fit.cutoff_m, 4 * h)
     mu = (cutoff / (2 * np.pi)) ** 4 / fit.spacing_m          # = sigma^2 / q
