@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import geodesy
-from .mcap_log import ExtraChannel, write_log
+from .mcap_log import ExtraChannel, copy_log, write_log
 from .types import SensorLog
 
 #: Most points per drawn line (traces are decimated evenly to this).
@@ -184,8 +184,16 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
                      geometry: dict[str, np.ndarray] | None = None) -> None:
     """Write ``fused.mcap`` (module docstring): the trajectory table (trajectory.csv columns), the
     rails when ``geometry`` has the rail columns, and the topics and metadata of the raw log
-    ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given."""
+    ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given.
+
+    When ``raw`` was read whole from an intact file that is unchanged since (``raw.source``), that
+    file's records are copied byte for byte (:func:`~trackfusion.sensors.mcap_log.copy_log`: no
+    re-encoding, no recompression); otherwise (e.g. the readable part of a damaged log) the raw
+    topics are written from the arrays of ``raw``."""
     extra = trajectory_channels(table, origin, max_rate_hz)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
-    write_log(path, raw if raw is not None else SensorLog(), extra)
+    if raw is not None and raw.source is not None and raw.source.unchanged():
+        copy_log(path, raw.source, extra)
+    else:
+        write_log(path, raw if raw is not None else SensorLog(), extra)

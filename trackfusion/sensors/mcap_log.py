@@ -28,6 +28,7 @@ import itertools
 import json
 import mmap
 import operator
+import os
 import struct
 import warnings
 import zlib
@@ -231,11 +232,11 @@ class _Merged:
     payloads: list[str]
 
 
-def _merge(streams: list[_Stream]) -> _Merged:
-    """Interleave the channels in log_time order (ties: channel order); channel ids start at 1."""
+def _merge(streams: list[_Stream], first_id: int = 1) -> _Merged:
+    """Interleave the channels in log_time order (ties: channel order); channel ids start at ``first_id``."""
     if not streams:
         return _Merged(np.zeros(0, np.uint16), np.zeros(0, np.int64), np.zeros(0, np.uint32), [])
-    chan = np.concatenate([np.full(s.log_time_ns.size, i + 1, np.uint16) for i, s in enumerate(streams)])
+    chan = np.concatenate([np.full(s.log_time_ns.size, i + first_id, np.uint16) for i, s in enumerate(streams)])
     times = np.concatenate([s.log_time_ns for s in streams])
     seq = np.concatenate([np.arange(s.log_time_ns.size, dtype=np.uint64) for s in streams]) % (1 << 32)
     order = np.lexsort((chan, times))
@@ -311,29 +312,68 @@ def _compress(data: bytes) -> bytes:
     return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
 
 
-def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]]) -> None:
-    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer."""
-    out = _Output(fh)
-    out.put(MAGIC)
-    out.put(_record(Header(profile="", library=LIBRARY)))
-    schema_ids: dict[str, int] = {}
-    schema_recs, channel_recs = [], []
-    for s in streams:
-        if s.schema not in schema_ids:
-            schema_ids[s.schema] = len(schema_ids) + 1
-            data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
-            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema", data=data))
-    for i, s in enumerate(streams):
-        channel_recs.append(Channel(id=i + 1, schema_id=schema_ids[s.schema], topic=s.topic,
-                                    message_encoding="json", metadata={}))
-    for rec in schema_recs + channel_recs:
-        out.put(_record(rec))
-    metadata_indexes = []
-    for name, data in metadata:
-        rec = _record(Metadata(name=name, metadata=data))
-        metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+@dataclass(frozen=True)
+class RawSource:
+    """An intact raw log file as :func:`read_log` checked it: what copying its records byte for
+    byte needs (``fused.mcap`` carries the raw inputs unchanged without formatting them again).
 
-    merged = _merge(streams)
+    schemas: id -> (name, encoding, data); channels: id -> (schema id, topic, message encoding,
+    metadata); records: (opcode, start, stop) byte ranges of the data section's chunk, message
+    index and metadata records, in file order; message_counts: channel id -> messages.
+    """
+
+    path: Path
+    size: int
+    mtime_ns: int
+    schemas: dict[int, tuple[str, str, bytes]]
+    channels: dict[int, tuple[int, str, str, dict[str, str]]]
+    records: tuple[tuple[int, int, int], ...]
+    message_counts: dict[int, int]
+
+    def unchanged(self) -> bool:
+        """True when the file still has the size and modification time it had when read."""
+        try:
+            st = self.path.stat()
+        except OSError:
+            return False
+        return (st.st_size, st.st_mtime_ns) == (self.size, self.mtime_ns)
+
+
+def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
+    """Copy the source's metadata, chunk and message index records unchanged (chunks stay
+    compressed; message indexes are relative to their chunk, so they stay valid); returns the
+    metadata and chunk indexes of the copies."""
+    metadata_indexes: list[MetadataIndex] = []
+    chunk_indexes: list[ChunkIndex] = []
+    last_op = None
+    with open(source.path, "rb") as src:
+        for op, start, stop in source.records:
+            src.seek(start)
+            rec = src.read(stop - start)
+            if len(rec) != stop - start:
+                raise SensorDataError(f"{source.path}: changed while being copied")
+            if op == _METADATA:
+                name = _Cursor(rec[9:], start + 9).text()
+                metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+            elif op == _CHUNK:
+                t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
+                n = struct.unpack_from("<I", rec, 37)[0]
+                compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
+                chunk_indexes.append(ChunkIndex(
+                    message_start_time=t0, message_end_time=t1, chunk_start_offset=out.put(rec),
+                    chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
+                    compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
+            elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
+                index = chunk_indexes[-1]  # message indexes follow their chunk
+                index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
+                index.message_index_length += len(rec)
+            last_op = op if op != _METADATA else last_op
+    return metadata_indexes, chunk_indexes
+
+
+def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
+    """The merged messages as zstd chunks of about CHUNK_SIZE_BYTES, each followed by its message
+    indexes; returns their chunk indexes."""
     lengths = np.fromiter(map(len, merged.payloads), dtype=np.int64, count=len(merged.payloads))
     bounds = _chunk_bounds(lengths + 31, CHUNK_SIZE_BYTES)
     chunk_indexes = []
@@ -355,14 +395,49 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
                 chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
                 message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
                 uncompressed_size=len(raw)))
+    return chunk_indexes
+
+
+def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]],
+                source: RawSource | None = None) -> None:
+    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer.
+    With ``source``, its schemas and channels (same ids) and records come first, copied unchanged;
+    ``streams`` then take the next ids."""
+    out = _Output(fh)
+    out.put(MAGIC)
+    out.put(_record(Header(profile="", library=LIBRARY)))
+    schema_recs = [Schema(id=i, name=n, encoding=e, data=d) for i, (n, e, d) in sorted((source.schemas
+                                                                                       if source else {}).items())]
+    channel_recs = [Channel(id=i, schema_id=sid, topic=t, message_encoding=e, metadata=m)
+                    for i, (sid, t, e, m) in sorted((source.channels if source else {}).items())]
+    next_schema = max((r.id for r in schema_recs), default=0) + 1
+    first_channel = max((r.id for r in channel_recs), default=0) + 1
+    schema_ids: dict[tuple[str, bytes], int] = {}
+    for i, s in enumerate(streams):
+        data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
+        if (s.schema, data) not in schema_ids:
+            schema_ids[(s.schema, data)] = next_schema + len(schema_ids)
+            schema_recs.append(Schema(id=schema_ids[(s.schema, data)], name=s.schema, encoding="jsonschema",
+                                      data=data))
+        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[(s.schema, data)], topic=s.topic,
+                                    message_encoding="json", metadata={}))
+    for rec in schema_recs + channel_recs:
+        out.put(_record(rec))
+    metadata_indexes, chunk_indexes = _copied_records(out, source) if source else ([], [])
+    for name, data in metadata:
+        rec = _record(Metadata(name=name, metadata=data))
+        metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+    chunk_indexes += _write_chunks(out, _merge(streams, first_channel))
     out.put(_record(DataEnd(data_section_crc=out.crc)), in_crc=False)
 
-    counts = {i + 1: int(s.log_time_ns.size) for i, s in enumerate(streams)}
+    counts = dict(source.message_counts) if source else {}
+    counts.update({first_channel + i: int(s.log_time_ns.size) for i, s in enumerate(streams)})
+    timed = [c for c in chunk_indexes if c.uncompressed_size]
     stats = Statistics(
-        message_count=len(merged.payloads), schema_count=len(schema_recs), channel_count=len(channel_recs),
-        attachment_count=0, metadata_count=len(metadata), chunk_count=len(bounds),
-        message_start_time=int(merged.log_time_ns.min()) if lengths.size else 0,
-        message_end_time=int(merged.log_time_ns.max()) if lengths.size else 0, channel_message_counts=counts)
+        message_count=sum(counts.values()), schema_count=len(schema_recs), channel_count=len(channel_recs),
+        attachment_count=0, metadata_count=len(metadata_indexes), chunk_count=len(chunk_indexes),
+        message_start_time=min((c.message_start_time for c in timed), default=0),
+        message_end_time=max((c.message_end_time for c in timed), default=0), channel_message_counts=counts)
     groups = [(_SCHEMA, schema_recs), (_CHANNEL, channel_recs), (_STATISTICS, [stats]),
               (_CHUNK_INDEX, chunk_indexes), (_METADATA_INDEX, metadata_indexes)]
     summary_start = out.pos
@@ -397,11 +472,27 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
     :func:`read_log` accepts; ``fused.mcap`` is written this way).
     """
-    streams = _streams(log) + [_Stream(c.topic, c.schema_name, np.asarray(c.log_time_ns, np.int64), list(c.payloads),
-                                       c.schema_data) for c in extra]
+    streams = _streams(log) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)
+
+
+def _extra_streams(extra: Iterable[ExtraChannel]) -> list[_Stream]:
+    return [_Stream(c.topic, c.schema_name, np.asarray(c.log_time_ns, np.int64), list(c.payloads), c.schema_data)
+            for c in extra]
+
+
+def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = ()) -> None:
+    """Write to ``path`` the raw log file ``source`` (a ``SensorLog.source`` from :func:`read_log`)
+    with its schemas, channels (same ids), metadata and chunks copied byte for byte (no decoding,
+    no recompression), then the ``extra`` channels (next ids) in chunks of their own; summary
+    as :func:`write_log`. Atomic and byte-identical for identical input. Raises
+    :class:`SensorDataError` when the file changed since it was read."""
+    if not source.unchanged():
+        raise SensorDataError(f"{source.path}: changed since it was read; read it again")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        _write_mcap(fh, _extra_streams(extra), [], source)
 
 
 # =================================================================================================
@@ -466,6 +557,7 @@ class _RawChannel:
     topic: str
     schema_id: int
     encoding: str
+    metadata: dict[str, str] = field(default_factory=dict)
     times: list[np.ndarray] = field(default_factory=list)
     payloads: list[bytes] = field(default_factory=list)
     count: int = 0
@@ -506,25 +598,48 @@ class _Scan:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     problem: _Corrupt | None = None
     n_messages: int = 0
+    schema_data: dict[int, bytes] = field(default_factory=dict)
+    #: (opcode, start, stop) of the data section's chunk, message index and metadata records
+    copy_records: list[tuple[int, int, int]] = field(default_factory=list)
+    #: False when the data section holds records that a byte copy would not carry (top-level messages, attachments)
+    copyable: bool = True
+    stat: os.stat_result | None = None
+
+    def source(self) -> "RawSource | None":
+        """What copying the whole file needs, or None unless it was read whole, intact and copyable."""
+        if self.wanted is not None or self.problem is not None or not self.copyable or self.stat is None:
+            return None
+        return RawSource(Path(self.path).resolve(), self.stat.st_size, self.stat.st_mtime_ns,
+                         {i: (n, e, self.schema_data[i]) for i, (n, e) in self.schemas.items()},
+                         {i: (c.schema_id, c.topic, c.encoding, dict(c.metadata)) for i, c in self.channels.items()},
+                         tuple(self.copy_records), {i: c.count for i, c in self.channels.items()})
 
     def add_schema(self, c: _Cursor) -> None:
         sid = c.take("<H")
         name, encoding = c.text(), c.text()
-        c.raw(c.take("<I"))
+        data = c.raw(c.take("<I"))
         if sid == 0:
             raise _Corrupt("schema id 0 is reserved", c.base)
         if self.schemas.setdefault(sid, (name, encoding)) != (name, encoding):
             raise _Corrupt(f"schema id {sid} defined twice differently", c.base)
+        self.schema_data.setdefault(sid, bytes(data))
+
+    def note_record(self, op: int, start: int, stop: int) -> None:
+        """Remember where a top-level data-section record lies (what :class:`RawSource` copies)."""
+        if op in (_CHUNK, _MESSAGE_INDEX, _METADATA):
+            self.copy_records.append((op, start, stop))
+        elif op not in (_SCHEMA, _CHANNEL):
+            self.copyable = False
 
     def add_channel(self, c: _Cursor) -> None:
         cid, schema_id = c.take("<HH")
         topic, encoding = c.text(), c.text()
-        c.string_map()
+        metadata = c.string_map()
         known = self.channels.get(cid)
         if known is None:
             if schema_id and schema_id not in self.schemas:
                 raise _Corrupt(f"channel {topic} refers to undefined schema id {schema_id}", c.base)
-            self.channels[cid] = _RawChannel(topic, schema_id, encoding)
+            self.channels[cid] = _RawChannel(topic, schema_id, encoding, metadata)
         elif (known.topic, known.schema_id, known.encoding) != (topic, schema_id, encoding):
             raise _Corrupt(f"channel id {cid} defined twice differently", c.base)
 
@@ -678,6 +793,7 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
             in_data = False
         elif in_data:
             _read_record(scan, op, body, pos)
+            scan.note_record(op, pos, stop)
         if in_data:
             crc = zlib.crc32(body, zlib.crc32(mm[pos:pos + 9], crc))
         pos = stop
@@ -702,6 +818,7 @@ def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _S
     scan = _Scan(str(path), wanted)
     try:
         with open(path, "rb") as fh:
+            scan.stat = os.fstat(fh.fileno())
             size = fh.seek(0, io.SEEK_END)
             if size == 0:
                 raise _Corrupt("empty file", 0)
@@ -1127,6 +1244,7 @@ def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[Sens
             raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
         ch.payloads, ch.times = [], []
     log.metadata = _decode_metadata(p, scan.metadata)
+    log.source = scan.source()
     return log, scan
 
 
