@@ -26,11 +26,9 @@ from __future__ import annotations
 import io
 import itertools
 import json
-import mmap
 import operator
 import os
 import struct
-import warnings
 import zlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -583,7 +581,8 @@ class _RawChannel:
         if self.bad is not None:
             raise self.bad
         batches, self.batches = self.batches, []
-        return {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
+        # field by field, dropping each field's batches once joined (peak: one field twice, not all)
+        return {k: np.concatenate([b.pop(k) for b in batches]) for k in list(batches[0])}
 
 
 @dataclass
@@ -769,7 +768,7 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
     while True:
         if pos + 9 > size:
             raise _Corrupt("file ends before the footer", pos)
-        op, length = _RECORD_HEAD.unpack_from(mm, pos)
+        op, length = _RECORD_HEAD.unpack(mm[pos:pos + 9])
         stop = pos + 9 + length
         if pos == len(MAGIC) and op != _HEADER:
             raise _Corrupt("first record is not a header", pos)
@@ -799,6 +798,20 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
         pos = stop
 
 
+class _FileBytes:
+    """Byte ranges of an open file read on demand (``data[a:b]`` -> bytes, clipped to the file):
+    a scan holds one record at a time. (A memory map of the whole file would keep every page it
+    touched resident: the read's peak memory would grow by the file's size.)"""
+
+    def __init__(self, fd: int, size: int):
+        self.fd, self.size = fd, size
+
+    def __getitem__(self, where: slice) -> bytes:
+        start = where.start or 0
+        stop = self.size if where.stop is None else min(where.stop, self.size)
+        return os.pread(self.fd, stop - start, start) if stop > start else b""
+
+
 def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
     """The footer must be followed by the closing magic; its summary CRC must match."""
     summary_start, summary_offset_start, summary_crc = _Cursor(body, pos + 9).take("<QQI")
@@ -822,8 +835,7 @@ def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _S
             size = fh.seek(0, io.SEEK_END)
             if size == 0:
                 raise _Corrupt("empty file", 0)
-            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-                _scan_records(scan, mm, size)
+            _scan_records(scan, _FileBytes(fh.fileno(), size), size)
     except FileNotFoundError:
         raise SensorDataError(f"{path}: file not found") from None
     except IsADirectoryError:
@@ -956,13 +968,11 @@ def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np
     del text
     if not _json_numbers(numbers):
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        try:
-            values = np.fromstring(numbers, dtype=np.float64, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    return values.reshape(n, k) if values.size == n * k else None
+    tokens = numbers.split()  # JSON numbers only (checked above): float() parses each exactly
+    del numbers
+    if len(tokens) != n * k:
+        return None
+    return np.fromiter(map(float, tokens), dtype=np.float64, count=n * k).reshape(n, k)
 
 
 def _value_problem(v, path: str, kind: str) -> str | None:
