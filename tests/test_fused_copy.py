@@ -109,3 +109,26 @@ def test_what_cannot_be_copied_is_written_from_the_arrays(tmp_path):
     imu = [json.loads(m[-1]) for m in fused["/imu"]]
     assert [m["angular_velocity"]["x"] for m in imu] == log.imu.gyro_radps[:, 0].tolist()
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_pose_and_fix_payloads_are_the_json_of_their_messages():
+    """The printf templates give exactly the compact JSON of the message dicts."""
+    from trackfusion.sensors.fused import _dumps, _pose_and_fix_payloads, _stamp
+
+    rng = np.random.default_rng(3)
+    n = 500
+    ns = np.sort(rng.integers(0, 10**13, n))
+    pos, q, var, llh = (rng.normal(size=(n, k)) * 10.0 ** rng.integers(-12, 8, (n, k)) for k in (3, 4, 3, 3))
+    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, llh)
+    for k in range(n):
+        stamp = _stamp(int(ns[k]))
+        assert poses[k] == _dumps({"timestamp": stamp, "frame_id": "n", "pose": {
+            "position": dict(zip("xyz", pos[k].tolist())), "orientation": dict(zip("xyzw", q[k].tolist()))}})
+        v = var[k].tolist()
+        assert fixes[k] == _dumps({"timestamp": stamp, "frame_id": "n", "latitude": llh[k, 0], "longitude": llh[k, 1],
+                                   "altitude": llh[k, 2], "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0,
+                                                                                  0.0, 0.0, v[2]],
+                                   "position_covariance_type": 2})
+    pos[7, 1] = np.nan
+    with pytest.raises(ValueError):
+        _pose_and_fix_payloads(ns, pos, q, var, llh)

@@ -30,7 +30,11 @@ import operator
 import os
 import struct
 import zlib
-from concurrent.futures import ThreadPoolExecutor
+import collections
+import concurrent.futures
+import multiprocessing
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -559,18 +563,14 @@ class _RawChannel:
     times: list[np.ndarray] = field(default_factory=list)
     payloads: list[bytes] = field(default_factory=list)
     count: int = 0
-    batches: list[dict[str, np.ndarray]] = field(default_factory=list)
+    #: (index of the batch's first record, its decoding: a :func:`_decode_batch` result or a future of one)
+    batches: list[tuple[int, Any]] = field(default_factory=list)
     decoded: int = 0
-    bad: "_Bad | None" = None
 
-    def decode_pending(self, schema: str) -> None:
-        """Decode the pending payloads into a field batch (after the first invalid record, only
-        count them: that record is what will be reported)."""
-        if self.bad is None:
-            try:
-                self.batches.append(_decode_fields(self.payloads, schema))
-            except _Bad as bad:
-                self.bad, self.batches = _Bad(self.decoded + bad.index, bad.reason), []
+    def decode_pending(self, schema: str, decoder: "_Decoder | None" = None) -> None:
+        """Hand the pending payloads to ``decoder`` as one batch (decoded here without one)."""
+        self.batches.append((self.decoded, decoder.decode(self.payloads, schema) if decoder is not None
+                             else _decode_batch(self.payloads, schema)))
         self.decoded += len(self.payloads)
         self.payloads = []
 
@@ -578,11 +578,73 @@ class _RawChannel:
         """Every decoded field of the channel; raises _Bad for its first invalid record."""
         if self.payloads or not self.batches:
             self.decode_pending(schema)
-        if self.bad is not None:
-            raise self.bad
-        batches, self.batches = self.batches, []
+        pending, self.batches = self.batches, []
+        batches = []
+        for first, result in pending:
+            result = result.result() if isinstance(result, Future) else result
+            if isinstance(result, tuple):  # the first invalid record is in the first bad batch
+                raise _Bad(first + result[0], result[1])
+            batches.append(result)
         # field by field, dropping each field's batches once joined (peak: one field twice, not all)
         return {k: np.concatenate([b.pop(k) for b in batches]) for k in list(batches[0])}
+
+
+def _decode_batch(payloads: list[bytes], schema: str) -> dict[str, np.ndarray] | tuple[int, str]:
+    """:func:`_decode_fields`, or (index, reason) of the batch's first invalid record (picklable:
+    it may run in a worker process)."""
+    try:
+        return _decode_fields(payloads, schema)
+    except _Bad as bad:
+        return bad.index, bad.reason
+
+
+#: worker processes decoding payload batches while a scan goes on (below 2: none, decode in turn)
+DECODE_WORKERS = 2
+#: batches decoded by worker processes at once at most (bounds the payload text a read holds)
+_MAX_IN_FLIGHT = 4
+
+
+class _Decoder:
+    """Decodes the payload batches of a scan in two worker processes while the scan goes on
+    (results are taken in batch order: identical to decoding them in turn). The workers are
+    forked (a spawned worker would import the caller's main script again, and every import
+    anew); they only run :func:`_decode_batch`. Without two CPUs, without ``fork``, inside a
+    worker process (e.g. ``trackfusion batch``) or where processes cannot be started, batches
+    are decoded in this process."""
+
+    def __init__(self):
+        self.pool: ProcessPoolExecutor | None = None
+        self.in_flight: collections.deque[Future] = collections.deque()
+        self.parallel = (DECODE_WORKERS >= 2 and len(os.sched_getaffinity(0)) >= 2
+                         and multiprocessing.parent_process() is None
+                         and "fork" in multiprocessing.get_all_start_methods())
+
+    def decode(self, payloads: list[bytes], schema: str) -> Any:
+        """A future of :func:`_decode_batch` (or its result when decoding here)."""
+        if self.parallel and self.pool is None:
+            try:
+                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS,
+                                                mp_context=multiprocessing.get_context("fork"))
+            except (OSError, ValueError):
+                self.parallel = False
+        future = None
+        if self.pool is not None:
+            try:
+                future = self.pool.submit(_decode_batch, payloads, schema)
+            except (BrokenProcessPool, RuntimeError):  # a worker died (e.g. out of memory): go on here
+                self.close()
+                self.parallel = False
+        if future is None:
+            return _decode_batch(payloads, schema)
+        self.in_flight.append(future)
+        while len(self.in_flight) > _MAX_IN_FLIGHT:
+            concurrent.futures.wait([self.in_flight.popleft()])
+        return future
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
 
 
 @dataclass
@@ -603,6 +665,7 @@ class _Scan:
     #: False when the data section holds records that a byte copy would not carry (top-level messages, attachments)
     copyable: bool = True
     stat: os.stat_result | None = None
+    decoder: _Decoder = field(default_factory=_Decoder)
 
     def source(self) -> "RawSource | None":
         """What copying the whole file needs, or None unless it was read whole, intact and copyable."""
@@ -672,7 +735,7 @@ class _Scan:
                     schema = _channel_schema(self, ch)
                 except _Bad:
                     continue  # a channel problem: reported by read_log after the scan
-                ch.decode_pending(schema)
+                ch.decode_pending(schema, self.decoder)
         self.n_messages += len(offsets)
 
     def readable(self) -> str:
@@ -827,8 +890,18 @@ def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
 
 
 def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _Scan:
-    """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix)."""
+    """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix).
+    The caller closes ``scan.decoder`` (here on error)."""
     scan = _Scan(str(path), wanted)
+    try:
+        _scan_into(scan, path, allow_truncated)
+    except BaseException:
+        scan.decoder.close()
+        raise
+    return scan
+
+
+def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
     try:
         with open(path, "rb") as fh:
             scan.stat = os.fstat(fh.fileno())
@@ -854,7 +927,6 @@ def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _S
         where = f" at byte {scan.problem.at}" if scan.problem.at >= 0 else ""
         raise SensorDataError(f"{path}: truncated or corrupt MCAP{where} ({scan.problem.reason}); "
                               f"{scan.readable()} before it; read_log(..., allow_truncated=True) returns them")
-    return scan
 
 
 # =================================================================================================
@@ -1242,17 +1314,20 @@ def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[Sens
     scan = _scan_file(p, allow_truncated, wanted)
     log = SensorLog()
     seen: dict[str, int] = {}
-    for cid, ch in scan.channels.items():
-        try:
-            schema = _channel_schema(scan, ch)
-            if ch.topic in seen:
-                raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
-            seen[ch.topic] = cid
-            if wanted is None or ch.topic in wanted:
-                _store(log, ch.topic, _decode_channel(scan, ch, schema))
-        except _Bad as bad:
-            raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
-        ch.payloads, ch.times = [], []
+    try:
+        for cid, ch in scan.channels.items():
+            try:
+                schema = _channel_schema(scan, ch)
+                if ch.topic in seen:
+                    raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
+                seen[ch.topic] = cid
+                if wanted is None or ch.topic in wanted:
+                    _store(log, ch.topic, _decode_channel(scan, ch, schema))
+            except _Bad as bad:
+                raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
+            ch.payloads, ch.times, ch.batches = [], [], []
+    finally:
+        scan.decoder.close()
     log.metadata = _decode_metadata(p, scan.metadata)
     log.source = scan.source()
     return log, scan
