@@ -10,6 +10,8 @@
   raises an error that says how many records were readable;
   ``allow_truncated=True`` returns that readable prefix instead.
 - :func:`inspect_log` summarises a log per topic (:class:`LogSummary`).
+- :func:`copy_log` writes a log file that :func:`read_log` read whole and intact
+  (``SensorLog.source``) again byte for byte, followed by extra channels (``fused.mcap``).
 
 ``log_time`` is integer nanoseconds of the recording sensor's clock:
 ``round(t_s * 1e9)``; reading gives ``t_s = log_time / 1e9`` (so times are
@@ -17,22 +19,23 @@ quantised to 1 ns; values round-trip bit-exactly).
 
 Both directions are vectorised: messages are formatted with one printf
 template per schema and parsed, when they are in trackfusion's canonical text
-layout, by one C-level number parse per topic; other valid JSON layouts take
-the general ``json`` path with identical checks.
+layout, by one number parse per batch of a topic (in two worker processes for
+a large log); other valid JSON layouts take the general ``json`` path with
+identical checks.
 """
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import io
 import itertools
 import json
+import multiprocessing
 import operator
 import os
 import struct
 import zlib
-import collections
-import concurrent.futures
-import multiprocessing
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -574,8 +577,9 @@ class _RawChannel:
         self.decoded += len(self.payloads)
         self.payloads = []
 
-    def fields(self, schema: str) -> dict[str, np.ndarray]:
-        """Every decoded field of the channel; raises _Bad for its first invalid record."""
+    def arrays(self, schema: str) -> list[np.ndarray]:
+        """The channel's sensor value arrays (:func:`_sensor_arrays`); raises _Bad for its first
+        invalid record."""
         if self.payloads or not self.batches:
             self.decode_pending(schema)
         pending, self.batches = self.batches, []
@@ -585,15 +589,31 @@ class _RawChannel:
             if isinstance(result, tuple):  # the first invalid record is in the first bad batch
                 raise _Bad(first + result[0], result[1])
             batches.append(result)
-        # field by field, dropping each field's batches once joined (peak: one field twice, not all)
-        return {k: np.concatenate([b.pop(k) for b in batches]) for k in list(batches[0])}
+        return _join_batches(batches)
 
 
-def _decode_batch(payloads: list[bytes], schema: str) -> dict[str, np.ndarray] | tuple[int, str]:
-    """:func:`_decode_fields`, or (index, reason) of the batch's first invalid record (picklable:
-    it may run in a worker process)."""
+def _join_batches(batches: list[list[np.ndarray]]) -> list[np.ndarray]:
+    """Concatenate batches of arrays into arrays allocated once, freeing each batch once copied:
+    the peak memory is the batches plus one batch, not twice the data."""
+    total = sum(len(b[0]) for b in batches)
+    out = [np.empty((total,) + a.shape[1:], a.dtype) for a in batches[0]]
+    at = 0
+    batches.reverse()
+    while batches:
+        batch = batches.pop()
+        n = len(batch[0])
+        for whole, part in zip(out, batch):
+            whole[at:at + n] = part
+        at += n
+        del batch
+    return out
+
+
+def _decode_batch(payloads: list[bytes], schema: str) -> list[np.ndarray] | tuple[int, str]:
+    """The sensor value arrays (:func:`_sensor_arrays`) of a batch of payloads, or (index, reason)
+    of its first invalid record (picklable: it may run in a worker process)."""
     try:
-        return _decode_fields(payloads, schema)
+        return _sensor_arrays(schema, _decode_fields(payloads, schema))
     except _Bad as bad:
         return bad.index, bad.reason
 
@@ -601,7 +621,7 @@ def _decode_batch(payloads: list[bytes], schema: str) -> dict[str, np.ndarray] |
 #: worker processes decoding payload batches while a scan goes on (below 2: none, decode in turn)
 DECODE_WORKERS = 2
 #: batches decoded by worker processes at once at most (bounds the payload text a read holds)
-_MAX_IN_FLIGHT = 4
+_MAX_IN_FLIGHT = 2
 
 
 class _Decoder:
@@ -1219,23 +1239,27 @@ def _channel_schema(scan: _Scan, ch: _RawChannel) -> str:
     return name
 
 
-def _sensor(topic: str, schema: str, t_s: np.ndarray, f: dict[str, np.ndarray]):
-    """The sensor dataclass of one decoded topic."""
+def _sensor_arrays(schema: str, f: dict[str, np.ndarray]) -> list[np.ndarray]:
+    """The value arrays of a topic's sensor dataclass (the fields after ``t_s``, in their final
+    shapes) from its decoded fields ``f``."""
     if schema == schemas.IMU:
-        return ImuData(t_s, np.column_stack([f[f"angular_velocity.{a}"] for a in "xyz"]).reshape(-1, 3),
-                       np.column_stack([f[f"linear_acceleration.{a}"] for a in "xyz"]).reshape(-1, 3))
-    if schema == schemas.ODOMETER:
-        return OdometerData(t_s, f["distance_m"], f["ticks"])
+        return [np.column_stack([f[f"{v}.{a}"] for a in "xyz"]).reshape(-1, 3)
+                for v in ("angular_velocity", "linear_acceleration")]
     if schema == schemas.LOCATION_FIX:
-        return GnssData(t_s, f["latitude"], f["longitude"], f["altitude"],
-                        f["position_covariance"].reshape(-1, 3, 3), f["fix_quality"])
+        return [f["latitude"], f["longitude"], f["altitude"], f["position_covariance"].reshape(-1, 3, 3),
+                f["fix_quality"]]
+    return [f[path] for path, _ in schemas.FIELDS[schema]]
+
+
+_SENSOR_TYPES = {schemas.IMU: ImuData, schemas.ODOMETER: OdometerData, schemas.LOCATION_FIX: GnssData,
+                 schemas.INCLINATION: InclinometerData, schemas.GAUGE: GaugeData}
+
+
+def _sensor(topic: str, schema: str, t_s: np.ndarray, arrays: list[np.ndarray]):
+    """The sensor dataclass of one decoded topic (``arrays``: :func:`_sensor_arrays`)."""
     if schema == schemas.POLAR:
-        sid = topic[len(schemas.TOTAL_STATION_PREFIX):]
-        return TotalStationData(sid, t_s, f["horizontal_angle_rad"], f["zenith_angle_rad"], f["slope_distance_m"],
-                                f["prism_id"])
-    if schema == schemas.INCLINATION:
-        return InclinometerData(t_s, f["roll_rad"], f["pitch_rad"])
-    return GaugeData(t_s, f["gauge_m"])
+        return TotalStationData(topic[len(schemas.TOTAL_STATION_PREFIX):], t_s, *arrays)
+    return _SENSOR_TYPES[schema](t_s, *arrays)
 
 
 def _store(log: SensorLog, topic: str, data) -> None:
@@ -1295,18 +1319,18 @@ def read_log_with_damage(path: str | Path, topics: Iterable[str] | None = None, 
 def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     """The sensor data of one channel; raises _Bad for its first invalid record (time or content)."""
     ns = np.concatenate(ch.times) if ch.times else np.zeros(0, np.uint64)
-    problems, t_s, fields = [], None, None
+    problems, t_s, arrays = [], None, None
     try:
         t_s = _check_times(ns)
     except _Bad as bad:
         problems.append(bad)
     try:
-        fields = ch.fields(schema)
+        arrays = ch.arrays(schema)
     except _Bad as bad:
         problems.append(bad)
     if problems:
         raise min(problems, key=lambda b: b.index)
-    return _sensor(ch.topic, schema, t_s, fields)
+    return _sensor(ch.topic, schema, t_s, arrays)
 
 
 def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[SensorLog, _Scan]:
