@@ -76,8 +76,11 @@ def test_output_files_follow_the_contract(ideal_run):
     for key in ("run_time_s", "keyframes", "factors", "final_cost", "odometer_scale_ppm", "gyro_bias_deg_per_h",
                 "accel_bias_ug", "rejected_gnss", "timings_s", "relative_accuracy", "static_intervals_s"):
         assert key in m, key
-    for key in ("read_s", "preintegrate_s", "build_s", "solve_s", "output_s"):
+    for key in ("read_s", "preintegrate_s", "build_s", "solve_s", "output_s", "write_s", "wall_s"):
         assert key in m["timings_s"], key
+    t = m["timings_s"]  # metrics.json is written last: the writing of every other output is in it
+    assert 0 < t["write_s"] and t["wall_s"] == pytest.approx(t["total_s"] + t["write_s"])
+    assert result.metrics["timings_s"] == t
     assert set(m["relative_accuracy"]) == {"along", "lateral", "vertical"}
     assert not [p.name for p in d.iterdir() if p.name.startswith(".out-")]  # no staging folder left
 

@@ -2,6 +2,7 @@
 
 import json
 import os
+from concurrent.futures import Future
 
 import numpy as np
 import pytest
@@ -455,18 +456,25 @@ def test_fuzz_message_content_only_raises_sensor_data_error(tmp_path_factory, pl
             assert all(np.isfinite(np.asarray(v, dtype=float)).all() for v in vars(d).values())
 
 
+@pytest.mark.parametrize("workers", [2, 0])
 @pytest.mark.parametrize("bad_index", [None, 1523, 900])
-def test_decoding_in_batches_while_scanning_is_exact(tmp_path, monkeypatch, bad_index):
+def test_decoding_in_batches_while_scanning_is_exact(tmp_path, monkeypatch, bad_index, workers):
     """The reader decodes the pending payloads of a channel once there are 100 (here) of them,
-    chunk by chunk during the scan (bounded memory): the values are those of one decode, and a
-    bad record in a later batch keeps its index."""
+    chunk by chunk during the scan (bounded memory), in worker processes or in turn: the values
+    are those of one decode, and a bad record in a later batch keeps its index."""
     import trackfusion.sensors.mcap_log as mcap_log
     monkeypatch.setattr(mcap_log, "_DECODE_BATCH", 100)
     monkeypatch.setattr(mcap_log, "CHUNK_SIZE_BYTES", 64 * 1024)  # several chunks
+    monkeypatch.setattr(mcap_log, "DECODE_WORKERS", workers)
     batches = []
     decode = mcap_log._RawChannel.decode_pending
-    monkeypatch.setattr(mcap_log._RawChannel, "decode_pending",
-                        lambda ch, schema: batches.append(ch.topic) or decode(ch, schema))
+
+    def counted(ch, schema, decoder=None):
+        decode(ch, schema, decoder)
+        batches.append(ch.topic)
+        assert isinstance(ch.batches[-1][1], Future) == (workers == 2 and decoder is not None)
+
+    monkeypatch.setattr(mcap_log._RawChannel, "decode_pending", counted)
     log = small_log(2000)
     write_log(tmp_path / "ok.mcap", log)
     if bad_index is None:

@@ -14,14 +14,33 @@ import numpy as np
 #: Longest series drawn per line (the figures are decimated to this many points).
 MAX_POINTS = 20000
 
+#: Fixed margins around the panels [in]: room for tick labels, axis labels and a title. (A layout
+#: engine would fit them per figure by drawing it twice more: most of the report's time.)
+MARGINS_IN = {"left": 1.0, "right": 0.2, "bottom": 0.5, "top": 0.32}
+#: Gaps between panels [in]: beside a panel with its own y labels, or with shared y / x axes.
+GAP_IN, SHARED_GAP_IN = 0.9, 0.45
+
 
 def _figure(width_in: float, height_in: float):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    fig = Figure(figsize=(width_in, height_in))
     FigureCanvasAgg(fig)
     return fig
+
+
+def _panels(fig, nrows: int = 1, ncols: int = 1, sharex: bool = False, sharey: bool = False):
+    """``fig.subplots`` with the fixed margins and gaps (MARGINS_IN, GAP_IN, SHARED_GAP_IN)."""
+    w_in, h_in = fig.get_size_inches()
+    m = MARGINS_IN
+    gap_w = SHARED_GAP_IN if sharey else GAP_IN
+    gap_h = 0.12 if sharex else GAP_IN
+    panel_w = (w_in - m["left"] - m["right"] - (ncols - 1) * gap_w) / ncols
+    panel_h = (h_in - m["bottom"] - m["top"] - (nrows - 1) * gap_h) / nrows
+    grid = {"left": m["left"] / w_in, "right": 1 - m["right"] / w_in, "bottom": m["bottom"] / h_in,
+            "top": 1 - m["top"] / h_in, "wspace": gap_w / panel_w, "hspace": gap_h / panel_h}
+    return fig.subplots(nrows, ncols, sharex=sharex, sharey=sharey, gridspec_kw=grid)
 
 
 def png_bytes(fig, dpi: int = 100) -> bytes:
@@ -38,7 +57,7 @@ def _every(n: int) -> slice:
 def plan_and_profile(traj: dict[str, np.ndarray]):
     """Plan (north against east) and profile (up against chainage) of the trajectory [m]."""
     fig = _figure(11.0, 3.6)
-    ax_plan, ax_prof = fig.subplots(1, 2)
+    ax_plan, ax_prof = _panels(fig, 1, 2)
     s = _every(traj["t_s"].size)
     ax_plan.plot(traj["e_m"][s], traj["n_m"][s], lw=1.0, color="C0")
     ax_plan.plot(traj["e_m"][0], traj["n_m"][0], "o", color="C2", label="start")
@@ -60,7 +79,7 @@ def plan_and_profile(traj: dict[str, np.ndarray]):
 def sigmas_along_chainage(traj: dict[str, np.ndarray]):
     """Smoothed 1-sigma position uncertainty (e, n, u) [mm] against chainage and time."""
     fig = _figure(11.0, 3.4)
-    ax_s, ax_t = fig.subplots(1, 2, sharey=True)
+    ax_s, ax_t = _panels(fig, 1, 2, sharey=True)
     s = _every(traj["t_s"].size)
     for i, axis in enumerate("enu"):
         sigma_mm = traj[f"sigma_{axis}_m"][s] * 1e3
@@ -82,7 +101,7 @@ def relative_accuracy(ra: dict, thresholds: dict):
     the MSE / ADEV limits as horizontal lines and the threshold scale as a vertical line."""
     comps = list(ra)
     fig = _figure(11.0, 3.6)
-    axes = np.atleast_1d(fig.subplots(1, len(comps), sharey=True))
+    axes = np.atleast_1d(_panels(fig, 1, len(comps), sharey=True))
     for ax, comp in zip(axes, comps):
         entry = ra[comp]
         scales = np.asarray(entry["scales_m"], float)
@@ -110,7 +129,7 @@ def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], lim
     exceedance chainages are marked with red ticks on the panel whose column they name."""
     names = list(series)
     fig = _figure(11.0, 1.7 * len(names) + 0.6)
-    axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
+    axes = np.atleast_1d(_panels(fig, len(names), 1, sharex=True))
     s = _every(chainage_m.size)
     for ax, name in zip(axes, names):
         ax.plot(chainage_m[s], series[name][s], lw=0.7, color="C0")
@@ -132,7 +151,7 @@ def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], lim
 def time_sync_curves(time_sync: dict):
     """Pearson correlation r against trial clock offset [s] per station, the chosen offset marked."""
     fig = _figure(11.0, 3.2)
-    ax = fig.subplots()
+    ax = _panels(fig)
     for i, (sid, entry) in enumerate(sorted(time_sync.items())):
         lags = np.asarray(entry.get("lags_s", []), float)
         r = np.asarray(entry.get("r", []), float)

@@ -46,17 +46,32 @@ class RunFiles:
     shown_dir: Path | None = None
 
 
-def load_run(run_dir: str | Path) -> RunFiles:
-    """Read a run folder; raises :class:`SensorDataError` naming the missing or bad file."""
+TRAJECTORY_REQUIRED = ("t_s", "e_m", "n_m", "u_m", "chainage_m", "sigma_e_m", "sigma_n_m", "sigma_u_m")
+
+
+def load_run(run_dir: str | Path, tables: dict[str, dict[str, np.ndarray]] | None = None) -> RunFiles:
+    """Read a run folder; raises :class:`SensorDataError` naming the missing or bad file.
+
+    tables: CSV tables of the folder already in memory (file name, e.g. ``"trajectory.csv"`` ->
+    columns, as written), used instead of parsing the files again (the pipeline passes its own)."""
     d = Path(run_dir)
     if not d.is_dir():
         raise SensorDataError(f"{d}: run folder not found")
+    tables = tables or {}
+
+    def table(name: str, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+        if name not in tables:
+            return read_csv_table(d / name, required=required)
+        missing = [c for c in required if c not in tables[name]]
+        if missing:
+            raise SensorDataError(f"{d / name}: missing column {missing[0]!r}")
+        return tables[name]
+
     metrics = read_json(d / "metrics.json", f"not found (is {d} the output folder of 'trackfusion run'?)")
-    traj = read_csv_table(d / "trajectory.csv", required=("t_s", "e_m", "n_m", "u_m", "chainage_m",
-                                                          "sigma_e_m", "sigma_n_m", "sigma_u_m"))
+    traj = table("trajectory.csv", TRAJECTORY_REQUIRED)
     geometry = geometry_meta = None
     if (d / "geometry.csv").is_file():
-        geometry = read_csv_table(d / "geometry.csv", required=("chainage_m",))
+        geometry = table("geometry.csv", ("chainage_m",))
         geometry_meta = read_sidecar(d / "geometry.csv") if (d / "geometry.json").is_file() else {}
     return RunFiles(d, metrics, traj, read_sidecar(d / "trajectory.csv"), geometry, geometry_meta)
 
@@ -319,11 +334,13 @@ def render_report(run: RunFiles) -> str:
             f"<nav>{nav}</nav>{''.join(sections)}</body></html>\n")
 
 
-def write_report(run_dir: str | Path, path: str | Path | None = None, shown_dir: str | Path | None = None) -> Path:
+def write_report(run_dir: str | Path, path: str | Path | None = None, shown_dir: str | Path | None = None,
+                 tables: dict[str, dict[str, np.ndarray]] | None = None) -> Path:
     """Write ``report.html`` of the run in ``run_dir`` (default: inside it); returns its path.
     ``shown_dir``: the output folder named in the report (default ``run_dir``; the pipeline
-    writes from a staging folder)."""
-    run = load_run(run_dir)
+    writes from a staging folder). ``tables``: the folder's CSV tables already in memory
+    (:func:`load_run`)."""
+    run = load_run(run_dir, tables)
     if shown_dir is not None:
         run.shown_dir = Path(shown_dir)
     out = Path(path) if path is not None else Path(run_dir) / "report.html"

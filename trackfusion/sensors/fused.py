@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import geodesy
-from .mcap_log import ExtraChannel, write_log
+from .mcap_log import ExtraChannel, copy_log, write_log
 from .types import SensorLog
 
 #: Most points per drawn line (traces are decimated evenly to this).
@@ -129,6 +129,33 @@ def _scene(ns: int, entity_id: str, lines: list[dict], meta: dict[str, str]) -> 
     return _dumps({"deletions": [], "entities": [entity]})
 
 
+#: ``_dumps`` of a PoseInFrame and of a LocationFix message as printf templates (``%r`` of a float is
+#: its JSON text): the same bytes, formatted without building dicts
+_POSE_TEMPLATE = ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"n","pose":{"position":{"x":%r,"y":%r,"z":%r},'
+                  '"orientation":{"x":%r,"y":%r,"z":%r,"w":%r}}}')
+_FIX_TEMPLATE = ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"n","latitude":%r,"longitude":%r,"altitude":%r,'
+                 '"position_covariance":[%r,0.0,0.0,0.0,%r,0.0,0.0,0.0,%r],"position_covariance_type":2}')
+
+
+def _pose_and_fix_payloads(ns: np.ndarray, pos: np.ndarray, q_xyzw: np.ndarray, var_enu: np.ndarray,
+                           llh: np.ndarray) -> tuple[list[str], list[str]]:
+    """PoseInFrame and LocationFix payloads at times ``ns`` (N,) [ns]: positions ``pos`` (N, 3) [m] in
+    ``n``, quaternions ``q_xyzw`` (N, 4), ENU variances ``var_enu`` (N, 3) [m^2], latitude,
+    longitude [deg] and height [m] ``llh`` (N, 3). Raises ValueError for non-finite values (as
+    ``_dumps``)."""
+    if not all(np.isfinite(a).all() for a in (pos, q_xyzw, var_enu, llh)):
+        raise ValueError("Out of range float values are not JSON compliant")
+    sec, nsec = (ns // 1_000_000_000).tolist(), (ns % 1_000_000_000).tolist()
+    poses = list(map(_POSE_TEMPLATE.__mod__, zip(sec, nsec, *_float_columns(pos), *_float_columns(q_xyzw))))
+    fixes = list(map(_FIX_TEMPLATE.__mod__, zip(sec, nsec, *_float_columns(llh), *_float_columns(var_enu))))
+    return poses, fixes
+
+
+def _float_columns(a: np.ndarray) -> list[list[float]]:
+    """The columns of ``a`` (N, k) as lists of Python floats."""
+    return [a[:, j].astype(np.float64).tolist() for j in range(a.shape[1])]
+
+
 def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = 10.0
                         ) -> list[ExtraChannel]:
     """Pose, fix and path channels of a trajectory table (trajectory.csv columns)."""
@@ -140,15 +167,7 @@ def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, ma
     q = np.column_stack([table[c] for c in ("qx", "qy", "qz", "qw")])[sel]
     var = np.column_stack([table[f"sigma_{a}_m"] for a in "enu"])[sel] ** 2
     lat, lon, h = geodesy.n_to_geodetic(pos, origin)
-    poses, fixes = [], []
-    for k, (p, qq, v) in enumerate(zip(pos.tolist(), q.tolist(), var.tolist())):
-        stamp = _stamp(int(ns[k]))
-        poses.append(_dumps({"timestamp": stamp, "frame_id": "n", "pose": {
-            "position": dict(zip("xyz", p)), "orientation": dict(zip("xyzw", qq))}}))
-        fixes.append(_dumps({"timestamp": stamp, "frame_id": "n", "latitude": float(lat[k]),
-                             "longitude": float(lon[k]), "altitude": float(h[k]),
-                             "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0, 0.0, 0.0, v[2]],
-                             "position_covariance_type": 2}))
+    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, np.column_stack([lat, lon, h]))
     t0 = ns[:1]
     path = _scene(int(ns[0]), "trajectory", [_line(np.column_stack([table["e_m"], table["n_m"], table["u_m"]]),
                                                    PATH_RGBA, 2.0)], {"what": "smoothed IMU origin path"})
@@ -184,8 +203,16 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
                      geometry: dict[str, np.ndarray] | None = None) -> None:
     """Write ``fused.mcap`` (module docstring): the trajectory table (trajectory.csv columns), the
     rails when ``geometry`` has the rail columns, and the topics and metadata of the raw log
-    ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given."""
+    ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given.
+
+    When ``raw`` was read whole from an intact file that is unchanged since (``raw.source``), that
+    file's records are copied byte for byte (:func:`~trackfusion.sensors.mcap_log.copy_log`: no
+    re-encoding, no recompression); otherwise (e.g. the readable part of a damaged log) the raw
+    topics are written from the arrays of ``raw``."""
     extra = trajectory_channels(table, origin, max_rate_hz)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
-    write_log(path, raw if raw is not None else SensorLog(), extra)
+    if raw is not None and raw.source is not None and raw.source.unchanged():
+        copy_log(path, raw.source, extra)
+    else:
+        write_log(path, raw if raw is not None else SensorLog(), extra)

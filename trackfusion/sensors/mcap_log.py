@@ -10,6 +10,8 @@
   raises an error that says how many records were readable;
   ``allow_truncated=True`` returns that readable prefix instead.
 - :func:`inspect_log` summarises a log per topic (:class:`LogSummary`).
+- :func:`copy_log` writes a log file that :func:`read_log` read whole and intact
+  (``SensorLog.source``) again byte for byte, followed by extra channels (``fused.mcap``).
 
 ``log_time`` is integer nanoseconds of the recording sensor's clock:
 ``round(t_s * 1e9)``; reading gives ``t_s = log_time / 1e9`` (so times are
@@ -17,21 +19,25 @@ quantised to 1 ns; values round-trip bit-exactly).
 
 Both directions are vectorised: messages are formatted with one printf
 template per schema and parsed, when they are in trackfusion's canonical text
-layout, by one C-level number parse per topic; other valid JSON layouts take
-the general ``json`` path with identical checks.
+layout, by one number parse per batch of a topic (in two worker processes for
+a large log); other valid JSON layouts take the general ``json`` path with
+identical checks.
 """
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import io
 import itertools
 import json
-import mmap
+import multiprocessing
 import operator
+import os
 import struct
-import warnings
 import zlib
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -231,11 +237,11 @@ class _Merged:
     payloads: list[str]
 
 
-def _merge(streams: list[_Stream]) -> _Merged:
-    """Interleave the channels in log_time order (ties: channel order); channel ids start at 1."""
+def _merge(streams: list[_Stream], first_id: int = 1) -> _Merged:
+    """Interleave the channels in log_time order (ties: channel order); channel ids start at ``first_id``."""
     if not streams:
         return _Merged(np.zeros(0, np.uint16), np.zeros(0, np.int64), np.zeros(0, np.uint32), [])
-    chan = np.concatenate([np.full(s.log_time_ns.size, i + 1, np.uint16) for i, s in enumerate(streams)])
+    chan = np.concatenate([np.full(s.log_time_ns.size, i + first_id, np.uint16) for i, s in enumerate(streams)])
     times = np.concatenate([s.log_time_ns for s in streams])
     seq = np.concatenate([np.arange(s.log_time_ns.size, dtype=np.uint64) for s in streams]) % (1 << 32)
     order = np.lexsort((chan, times))
@@ -311,29 +317,68 @@ def _compress(data: bytes) -> bytes:
     return zstandard.ZstdCompressor(level=ZSTD_LEVEL).compress(data)
 
 
-def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]]) -> None:
-    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer."""
-    out = _Output(fh)
-    out.put(MAGIC)
-    out.put(_record(Header(profile="", library=LIBRARY)))
-    schema_ids: dict[str, int] = {}
-    schema_recs, channel_recs = [], []
-    for s in streams:
-        if s.schema not in schema_ids:
-            schema_ids[s.schema] = len(schema_ids) + 1
-            data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
-            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema", data=data))
-    for i, s in enumerate(streams):
-        channel_recs.append(Channel(id=i + 1, schema_id=schema_ids[s.schema], topic=s.topic,
-                                    message_encoding="json", metadata={}))
-    for rec in schema_recs + channel_recs:
-        out.put(_record(rec))
-    metadata_indexes = []
-    for name, data in metadata:
-        rec = _record(Metadata(name=name, metadata=data))
-        metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+@dataclass(frozen=True)
+class RawSource:
+    """An intact raw log file as :func:`read_log` checked it: what copying its records byte for
+    byte needs (``fused.mcap`` carries the raw inputs unchanged without formatting them again).
 
-    merged = _merge(streams)
+    schemas: id -> (name, encoding, data); channels: id -> (schema id, topic, message encoding,
+    metadata); records: (opcode, start, stop) byte ranges of the data section's chunk, message
+    index and metadata records, in file order; message_counts: channel id -> messages.
+    """
+
+    path: Path
+    size: int
+    mtime_ns: int
+    schemas: dict[int, tuple[str, str, bytes]]
+    channels: dict[int, tuple[int, str, str, dict[str, str]]]
+    records: tuple[tuple[int, int, int], ...]
+    message_counts: dict[int, int]
+
+    def unchanged(self) -> bool:
+        """True when the file still has the size and modification time it had when read."""
+        try:
+            st = self.path.stat()
+        except OSError:
+            return False
+        return (st.st_size, st.st_mtime_ns) == (self.size, self.mtime_ns)
+
+
+def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
+    """Copy the source's metadata, chunk and message index records unchanged (chunks stay
+    compressed; message indexes are relative to their chunk, so they stay valid); returns the
+    metadata and chunk indexes of the copies."""
+    metadata_indexes: list[MetadataIndex] = []
+    chunk_indexes: list[ChunkIndex] = []
+    last_op = None
+    with open(source.path, "rb") as src:
+        for op, start, stop in source.records:
+            src.seek(start)
+            rec = src.read(stop - start)
+            if len(rec) != stop - start:
+                raise SensorDataError(f"{source.path}: changed while being copied")
+            if op == _METADATA:
+                name = _Cursor(rec[9:], start + 9).text()
+                metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+            elif op == _CHUNK:
+                t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
+                n = struct.unpack_from("<I", rec, 37)[0]
+                compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
+                chunk_indexes.append(ChunkIndex(
+                    message_start_time=t0, message_end_time=t1, chunk_start_offset=out.put(rec),
+                    chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
+                    compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
+            elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
+                index = chunk_indexes[-1]  # message indexes follow their chunk
+                index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
+                index.message_index_length += len(rec)
+            last_op = op if op != _METADATA else last_op
+    return metadata_indexes, chunk_indexes
+
+
+def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
+    """The merged messages as zstd chunks of about CHUNK_SIZE_BYTES, each followed by its message
+    indexes; returns their chunk indexes."""
     lengths = np.fromiter(map(len, merged.payloads), dtype=np.int64, count=len(merged.payloads))
     bounds = _chunk_bounds(lengths + 31, CHUNK_SIZE_BYTES)
     chunk_indexes = []
@@ -355,14 +400,49 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
                 chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
                 message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
                 uncompressed_size=len(raw)))
+    return chunk_indexes
+
+
+def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]],
+                source: RawSource | None = None) -> None:
+    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer.
+    With ``source``, its schemas and channels (same ids) and records come first, copied unchanged;
+    ``streams`` then take the next ids."""
+    out = _Output(fh)
+    out.put(MAGIC)
+    out.put(_record(Header(profile="", library=LIBRARY)))
+    schema_recs = [Schema(id=i, name=n, encoding=e, data=d) for i, (n, e, d) in sorted((source.schemas
+                                                                                       if source else {}).items())]
+    channel_recs = [Channel(id=i, schema_id=sid, topic=t, message_encoding=e, metadata=m)
+                    for i, (sid, t, e, m) in sorted((source.channels if source else {}).items())]
+    next_schema = max((r.id for r in schema_recs), default=0) + 1
+    first_channel = max((r.id for r in channel_recs), default=0) + 1
+    schema_ids: dict[tuple[str, bytes], int] = {}
+    for i, s in enumerate(streams):
+        data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
+        if (s.schema, data) not in schema_ids:
+            schema_ids[(s.schema, data)] = next_schema + len(schema_ids)
+            schema_recs.append(Schema(id=schema_ids[(s.schema, data)], name=s.schema, encoding="jsonschema",
+                                      data=data))
+        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[(s.schema, data)], topic=s.topic,
+                                    message_encoding="json", metadata={}))
+    for rec in schema_recs + channel_recs:
+        out.put(_record(rec))
+    metadata_indexes, chunk_indexes = _copied_records(out, source) if source else ([], [])
+    for name, data in metadata:
+        rec = _record(Metadata(name=name, metadata=data))
+        metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+    chunk_indexes += _write_chunks(out, _merge(streams, first_channel))
     out.put(_record(DataEnd(data_section_crc=out.crc)), in_crc=False)
 
-    counts = {i + 1: int(s.log_time_ns.size) for i, s in enumerate(streams)}
+    counts = dict(source.message_counts) if source else {}
+    counts.update({first_channel + i: int(s.log_time_ns.size) for i, s in enumerate(streams)})
+    timed = [c for c in chunk_indexes if c.uncompressed_size]
     stats = Statistics(
-        message_count=len(merged.payloads), schema_count=len(schema_recs), channel_count=len(channel_recs),
-        attachment_count=0, metadata_count=len(metadata), chunk_count=len(bounds),
-        message_start_time=int(merged.log_time_ns.min()) if lengths.size else 0,
-        message_end_time=int(merged.log_time_ns.max()) if lengths.size else 0, channel_message_counts=counts)
+        message_count=sum(counts.values()), schema_count=len(schema_recs), channel_count=len(channel_recs),
+        attachment_count=0, metadata_count=len(metadata_indexes), chunk_count=len(chunk_indexes),
+        message_start_time=min((c.message_start_time for c in timed), default=0),
+        message_end_time=max((c.message_end_time for c in timed), default=0), channel_message_counts=counts)
     groups = [(_SCHEMA, schema_recs), (_CHANNEL, channel_recs), (_STATISTICS, [stats]),
               (_CHUNK_INDEX, chunk_indexes), (_METADATA_INDEX, metadata_indexes)]
     summary_start = out.pos
@@ -397,11 +477,27 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
     :func:`read_log` accepts; ``fused.mcap`` is written this way).
     """
-    streams = _streams(log) + [_Stream(c.topic, c.schema_name, np.asarray(c.log_time_ns, np.int64), list(c.payloads),
-                                       c.schema_data) for c in extra]
+    streams = _streams(log) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)
+
+
+def _extra_streams(extra: Iterable[ExtraChannel]) -> list[_Stream]:
+    return [_Stream(c.topic, c.schema_name, np.asarray(c.log_time_ns, np.int64), list(c.payloads), c.schema_data)
+            for c in extra]
+
+
+def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = ()) -> None:
+    """Write to ``path`` the raw log file ``source`` (a ``SensorLog.source`` from :func:`read_log`)
+    with its schemas, channels (same ids), metadata and chunks copied byte for byte (no decoding,
+    no recompression), then the ``extra`` channels (next ids) in chunks of their own; summary
+    as :func:`write_log`. Atomic and byte-identical for identical input. Raises
+    :class:`SensorDataError` when the file changed since it was read."""
+    if not source.unchanged():
+        raise SensorDataError(f"{source.path}: changed since it was read; read it again")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        _write_mcap(fh, _extra_streams(extra), [], source)
 
 
 # =================================================================================================
@@ -466,32 +562,109 @@ class _RawChannel:
     topic: str
     schema_id: int
     encoding: str
+    metadata: dict[str, str] = field(default_factory=dict)
     times: list[np.ndarray] = field(default_factory=list)
     payloads: list[bytes] = field(default_factory=list)
     count: int = 0
-    batches: list[dict[str, np.ndarray]] = field(default_factory=list)
+    #: (index of the batch's first record, its decoding: a :func:`_decode_batch` result or a future of one)
+    batches: list[tuple[int, Any]] = field(default_factory=list)
     decoded: int = 0
-    bad: "_Bad | None" = None
 
-    def decode_pending(self, schema: str) -> None:
-        """Decode the pending payloads into a field batch (after the first invalid record, only
-        count them: that record is what will be reported)."""
-        if self.bad is None:
-            try:
-                self.batches.append(_decode_fields(self.payloads, schema))
-            except _Bad as bad:
-                self.bad, self.batches = _Bad(self.decoded + bad.index, bad.reason), []
+    def decode_pending(self, schema: str, decoder: "_Decoder | None" = None) -> None:
+        """Hand the pending payloads to ``decoder`` as one batch (decoded here without one)."""
+        self.batches.append((self.decoded, decoder.decode(self.payloads, schema) if decoder is not None
+                             else _decode_batch(self.payloads, schema)))
         self.decoded += len(self.payloads)
         self.payloads = []
 
-    def fields(self, schema: str) -> dict[str, np.ndarray]:
-        """Every decoded field of the channel; raises _Bad for its first invalid record."""
+    def arrays(self, schema: str) -> list[np.ndarray]:
+        """The channel's sensor value arrays (:func:`_sensor_arrays`); raises _Bad for its first
+        invalid record."""
         if self.payloads or not self.batches:
             self.decode_pending(schema)
-        if self.bad is not None:
-            raise self.bad
-        batches, self.batches = self.batches, []
-        return {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
+        pending, self.batches = self.batches, []
+        batches = []
+        for first, result in pending:
+            result = result.result() if isinstance(result, Future) else result
+            if isinstance(result, tuple):  # the first invalid record is in the first bad batch
+                raise _Bad(first + result[0], result[1])
+            batches.append(result)
+        return _join_batches(batches)
+
+
+def _join_batches(batches: list[list[np.ndarray]]) -> list[np.ndarray]:
+    """Concatenate batches of arrays into arrays allocated once, freeing each batch once copied:
+    the peak memory is the batches plus one batch, not twice the data."""
+    total = sum(len(b[0]) for b in batches)
+    out = [np.empty((total,) + a.shape[1:], a.dtype) for a in batches[0]]
+    at = 0
+    batches.reverse()
+    while batches:
+        batch = batches.pop()
+        n = len(batch[0])
+        for whole, part in zip(out, batch):
+            whole[at:at + n] = part
+        at += n
+        del batch
+    return out
+
+
+def _decode_batch(payloads: list[bytes], schema: str) -> list[np.ndarray] | tuple[int, str]:
+    """The sensor value arrays (:func:`_sensor_arrays`) of a batch of payloads, or (index, reason)
+    of its first invalid record (picklable: it may run in a worker process)."""
+    try:
+        return _sensor_arrays(schema, _decode_fields(payloads, schema))
+    except _Bad as bad:
+        return bad.index, bad.reason
+
+
+#: worker processes decoding payload batches while a scan goes on (below 2: none, decode in turn)
+DECODE_WORKERS = 2
+#: batches decoded by worker processes at once at most (bounds the payload text a read holds)
+_MAX_IN_FLIGHT = 2
+
+
+class _Decoder:
+    """Decodes the payload batches of a scan in two worker processes while the scan goes on
+    (results are taken in batch order: identical to decoding them in turn). The workers are
+    forked (a spawned worker would import the caller's main script again, and every import
+    anew); they only run :func:`_decode_batch`. Without two CPUs, without ``fork``, inside a
+    worker process (e.g. ``trackfusion batch``) or where processes cannot be started, batches
+    are decoded in this process."""
+
+    def __init__(self):
+        self.pool: ProcessPoolExecutor | None = None
+        self.in_flight: collections.deque[Future] = collections.deque()
+        self.parallel = (DECODE_WORKERS >= 2 and len(os.sched_getaffinity(0)) >= 2
+                         and multiprocessing.parent_process() is None
+                         and "fork" in multiprocessing.get_all_start_methods())
+
+    def decode(self, payloads: list[bytes], schema: str) -> Any:
+        """A future of :func:`_decode_batch` (or its result when decoding here)."""
+        if self.parallel and self.pool is None:
+            try:
+                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS,
+                                                mp_context=multiprocessing.get_context("fork"))
+            except (OSError, ValueError):
+                self.parallel = False
+        future = None
+        if self.pool is not None:
+            try:
+                future = self.pool.submit(_decode_batch, payloads, schema)
+            except (BrokenProcessPool, RuntimeError):  # a worker died (e.g. out of memory): go on here
+                self.close()
+                self.parallel = False
+        if future is None:
+            return _decode_batch(payloads, schema)
+        self.in_flight.append(future)
+        while len(self.in_flight) > _MAX_IN_FLIGHT:
+            concurrent.futures.wait([self.in_flight.popleft()])
+        return future
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
 
 
 @dataclass
@@ -506,25 +679,49 @@ class _Scan:
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     problem: _Corrupt | None = None
     n_messages: int = 0
+    schema_data: dict[int, bytes] = field(default_factory=dict)
+    #: (opcode, start, stop) of the data section's chunk, message index and metadata records
+    copy_records: list[tuple[int, int, int]] = field(default_factory=list)
+    #: False when the data section holds records that a byte copy would not carry (top-level messages, attachments)
+    copyable: bool = True
+    stat: os.stat_result | None = None
+    decoder: _Decoder = field(default_factory=_Decoder)
+
+    def source(self) -> "RawSource | None":
+        """What copying the whole file needs, or None unless it was read whole, intact and copyable."""
+        if self.wanted is not None or self.problem is not None or not self.copyable or self.stat is None:
+            return None
+        return RawSource(Path(self.path).resolve(), self.stat.st_size, self.stat.st_mtime_ns,
+                         {i: (n, e, self.schema_data[i]) for i, (n, e) in self.schemas.items()},
+                         {i: (c.schema_id, c.topic, c.encoding, dict(c.metadata)) for i, c in self.channels.items()},
+                         tuple(self.copy_records), {i: c.count for i, c in self.channels.items()})
 
     def add_schema(self, c: _Cursor) -> None:
         sid = c.take("<H")
         name, encoding = c.text(), c.text()
-        c.raw(c.take("<I"))
+        data = c.raw(c.take("<I"))
         if sid == 0:
             raise _Corrupt("schema id 0 is reserved", c.base)
         if self.schemas.setdefault(sid, (name, encoding)) != (name, encoding):
             raise _Corrupt(f"schema id {sid} defined twice differently", c.base)
+        self.schema_data.setdefault(sid, bytes(data))
+
+    def note_record(self, op: int, start: int, stop: int) -> None:
+        """Remember where a top-level data-section record lies (what :class:`RawSource` copies)."""
+        if op in (_CHUNK, _MESSAGE_INDEX, _METADATA):
+            self.copy_records.append((op, start, stop))
+        elif op not in (_SCHEMA, _CHANNEL):
+            self.copyable = False
 
     def add_channel(self, c: _Cursor) -> None:
         cid, schema_id = c.take("<HH")
         topic, encoding = c.text(), c.text()
-        c.string_map()
+        metadata = c.string_map()
         known = self.channels.get(cid)
         if known is None:
             if schema_id and schema_id not in self.schemas:
                 raise _Corrupt(f"channel {topic} refers to undefined schema id {schema_id}", c.base)
-            self.channels[cid] = _RawChannel(topic, schema_id, encoding)
+            self.channels[cid] = _RawChannel(topic, schema_id, encoding, metadata)
         elif (known.topic, known.schema_id, known.encoding) != (topic, schema_id, encoding):
             raise _Corrupt(f"channel id {cid} defined twice differently", c.base)
 
@@ -558,7 +755,7 @@ class _Scan:
                     schema = _channel_schema(self, ch)
                 except _Bad:
                     continue  # a channel problem: reported by read_log after the scan
-                ch.decode_pending(schema)
+                ch.decode_pending(schema, self.decoder)
         self.n_messages += len(offsets)
 
     def readable(self) -> str:
@@ -654,7 +851,7 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
     while True:
         if pos + 9 > size:
             raise _Corrupt("file ends before the footer", pos)
-        op, length = _RECORD_HEAD.unpack_from(mm, pos)
+        op, length = _RECORD_HEAD.unpack(mm[pos:pos + 9])
         stop = pos + 9 + length
         if pos == len(MAGIC) and op != _HEADER:
             raise _Corrupt("first record is not a header", pos)
@@ -678,9 +875,24 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
             in_data = False
         elif in_data:
             _read_record(scan, op, body, pos)
+            scan.note_record(op, pos, stop)
         if in_data:
             crc = zlib.crc32(body, zlib.crc32(mm[pos:pos + 9], crc))
         pos = stop
+
+
+class _FileBytes:
+    """Byte ranges of an open file read on demand (``data[a:b]`` -> bytes, clipped to the file):
+    a scan holds one record at a time. (A memory map of the whole file would keep every page it
+    touched resident: the read's peak memory would grow by the file's size.)"""
+
+    def __init__(self, fd: int, size: int):
+        self.fd, self.size = fd, size
+
+    def __getitem__(self, where: slice) -> bytes:
+        start = where.start or 0
+        stop = self.size if where.stop is None else min(where.stop, self.size)
+        return os.pread(self.fd, stop - start, start) if stop > start else b""
 
 
 def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
@@ -698,15 +910,25 @@ def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
 
 
 def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _Scan:
-    """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix)."""
+    """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix).
+    The caller closes ``scan.decoder`` (here on error)."""
     scan = _Scan(str(path), wanted)
     try:
+        _scan_into(scan, path, allow_truncated)
+    except BaseException:
+        scan.decoder.close()
+        raise
+    return scan
+
+
+def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
+    try:
         with open(path, "rb") as fh:
+            scan.stat = os.fstat(fh.fileno())
             size = fh.seek(0, io.SEEK_END)
             if size == 0:
                 raise _Corrupt("empty file", 0)
-            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-                _scan_records(scan, mm, size)
+            _scan_records(scan, _FileBytes(fh.fileno(), size), size)
     except FileNotFoundError:
         raise SensorDataError(f"{path}: file not found") from None
     except IsADirectoryError:
@@ -725,7 +947,6 @@ def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _S
         where = f" at byte {scan.problem.at}" if scan.problem.at >= 0 else ""
         raise SensorDataError(f"{path}: truncated or corrupt MCAP{where} ({scan.problem.reason}); "
                               f"{scan.readable()} before it; read_log(..., allow_truncated=True) returns them")
-    return scan
 
 
 # =================================================================================================
@@ -839,13 +1060,11 @@ def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np
     del text
     if not _json_numbers(numbers):
         return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        try:
-            values = np.fromstring(numbers, dtype=np.float64, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    return values.reshape(n, k) if values.size == n * k else None
+    tokens = numbers.split()  # JSON numbers only (checked above): float() parses each exactly
+    del numbers
+    if len(tokens) != n * k:
+        return None
+    return np.fromiter(map(float, tokens), dtype=np.float64, count=n * k).reshape(n, k)
 
 
 def _value_problem(v, path: str, kind: str) -> str | None:
@@ -1020,23 +1239,27 @@ def _channel_schema(scan: _Scan, ch: _RawChannel) -> str:
     return name
 
 
-def _sensor(topic: str, schema: str, t_s: np.ndarray, f: dict[str, np.ndarray]):
-    """The sensor dataclass of one decoded topic."""
+def _sensor_arrays(schema: str, f: dict[str, np.ndarray]) -> list[np.ndarray]:
+    """The value arrays of a topic's sensor dataclass (the fields after ``t_s``, in their final
+    shapes) from its decoded fields ``f``."""
     if schema == schemas.IMU:
-        return ImuData(t_s, np.column_stack([f[f"angular_velocity.{a}"] for a in "xyz"]).reshape(-1, 3),
-                       np.column_stack([f[f"linear_acceleration.{a}"] for a in "xyz"]).reshape(-1, 3))
-    if schema == schemas.ODOMETER:
-        return OdometerData(t_s, f["distance_m"], f["ticks"])
+        return [np.column_stack([f[f"{v}.{a}"] for a in "xyz"]).reshape(-1, 3)
+                for v in ("angular_velocity", "linear_acceleration")]
     if schema == schemas.LOCATION_FIX:
-        return GnssData(t_s, f["latitude"], f["longitude"], f["altitude"],
-                        f["position_covariance"].reshape(-1, 3, 3), f["fix_quality"])
+        return [f["latitude"], f["longitude"], f["altitude"], f["position_covariance"].reshape(-1, 3, 3),
+                f["fix_quality"]]
+    return [f[path] for path, _ in schemas.FIELDS[schema]]
+
+
+_SENSOR_TYPES = {schemas.IMU: ImuData, schemas.ODOMETER: OdometerData, schemas.LOCATION_FIX: GnssData,
+                 schemas.INCLINATION: InclinometerData, schemas.GAUGE: GaugeData}
+
+
+def _sensor(topic: str, schema: str, t_s: np.ndarray, arrays: list[np.ndarray]):
+    """The sensor dataclass of one decoded topic (``arrays``: :func:`_sensor_arrays`)."""
     if schema == schemas.POLAR:
-        sid = topic[len(schemas.TOTAL_STATION_PREFIX):]
-        return TotalStationData(sid, t_s, f["horizontal_angle_rad"], f["zenith_angle_rad"], f["slope_distance_m"],
-                                f["prism_id"])
-    if schema == schemas.INCLINATION:
-        return InclinometerData(t_s, f["roll_rad"], f["pitch_rad"])
-    return GaugeData(t_s, f["gauge_m"])
+        return TotalStationData(topic[len(schemas.TOTAL_STATION_PREFIX):], t_s, *arrays)
+    return _SENSOR_TYPES[schema](t_s, *arrays)
 
 
 def _store(log: SensorLog, topic: str, data) -> None:
@@ -1096,18 +1319,18 @@ def read_log_with_damage(path: str | Path, topics: Iterable[str] | None = None, 
 def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     """The sensor data of one channel; raises _Bad for its first invalid record (time or content)."""
     ns = np.concatenate(ch.times) if ch.times else np.zeros(0, np.uint64)
-    problems, t_s, fields = [], None, None
+    problems, t_s, arrays = [], None, None
     try:
         t_s = _check_times(ns)
     except _Bad as bad:
         problems.append(bad)
     try:
-        fields = ch.fields(schema)
+        arrays = ch.arrays(schema)
     except _Bad as bad:
         problems.append(bad)
     if problems:
         raise min(problems, key=lambda b: b.index)
-    return _sensor(ch.topic, schema, t_s, fields)
+    return _sensor(ch.topic, schema, t_s, arrays)
 
 
 def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[SensorLog, _Scan]:
@@ -1115,18 +1338,22 @@ def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[Sens
     scan = _scan_file(p, allow_truncated, wanted)
     log = SensorLog()
     seen: dict[str, int] = {}
-    for cid, ch in scan.channels.items():
-        try:
-            schema = _channel_schema(scan, ch)
-            if ch.topic in seen:
-                raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
-            seen[ch.topic] = cid
-            if wanted is None or ch.topic in wanted:
-                _store(log, ch.topic, _decode_channel(scan, ch, schema))
-        except _Bad as bad:
-            raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
-        ch.payloads, ch.times = [], []
+    try:
+        for cid, ch in scan.channels.items():
+            try:
+                schema = _channel_schema(scan, ch)
+                if ch.topic in seen:
+                    raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
+                seen[ch.topic] = cid
+                if wanted is None or ch.topic in wanted:
+                    _store(log, ch.topic, _decode_channel(scan, ch, schema))
+            except _Bad as bad:
+                raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
+            ch.payloads, ch.times, ch.batches = [], [], []
+    finally:
+        scan.decoder.close()
     log.metadata = _decode_metadata(p, scan.metadata)
+    log.source = scan.source()
     return log, scan
 
 

@@ -94,7 +94,10 @@ class GaugeData:
 class SensorLog:
     """A whole raw log: every sensor present (``None`` or empty dict where absent) and the run
     metadata (record name -> JSON-able dict: survey description, sensor specifications, lever
-    arms, total-station set-ups)."""
+    arms, total-station set-ups). ``source``: set by
+    :func:`~trackfusion.sensors.mcap_log.read_log` when the log was read whole from an intact
+    file (a :class:`~trackfusion.sensors.mcap_log.RawSource`: what ``fused.mcap`` needs to copy
+    the file's records byte for byte); not part of the log's value (ignored by ``==``)."""
 
     imu: ImuData | None = None
     odometer: OdometerData | None = None
@@ -103,3 +106,4 @@ class SensorLog:
     inclinometer: InclinometerData | None = None
     gauge: GaugeData | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    source: Any = field(default=None, compare=False, repr=False)

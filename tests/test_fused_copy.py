@@ -1,0 +1,134 @@
+"""fused.mcap carries the raw log unchanged: its records are copied byte for byte when the log was
+read whole from an intact file (any writer's layout), and written from the arrays otherwise."""
+
+import json
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
+
+from trackfusion.errors import SensorDataError
+from trackfusion.geodesy import Origin
+from trackfusion.sensors.fused import write_fused_mcap
+from trackfusion.sensors.mcap_log import _scan_file, copy_log, read_log, write_log
+from test_mcap_log import small_log
+
+ORIGIN = Origin(22.9, 112.9, 20.0)
+EXTRA_TOPICS = {"/trajectory/pose", "/trajectory/fix", "/trajectory/path"}
+
+
+def _table(n=300):
+    """A trajectory table (trajectory.csv columns) at 100 Hz."""
+    t = 0.5 + np.arange(n) / 100.0
+    z = np.zeros(n)
+    return {"t_s": t, "e_m": t * 2.0, "n_m": np.sin(t), "u_m": z + 1.0, "qw": z + 1.0, "qx": z, "qy": z, "qz": z,
+            "sigma_e_m": z + 1e-3, "sigma_n_m": z + 1e-3, "sigma_u_m": z + 2e-3}
+
+
+def _contents(path):
+    """topic -> [(schema name, schema data, encoding, channel metadata, log_time, bytes)], metadata, summary."""
+    out: dict[str, list] = {}
+    with open(path, "rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        for schema, ch, msg in reader.iter_messages(log_time_order=True):
+            out.setdefault(ch.topic, []).append((schema.name, schema.data, ch.message_encoding, ch.metadata,
+                                                 msg.log_time, msg.data))
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        return out, meta, reader.get_summary()
+
+
+def _foreign(path, compression, chunked):
+    """A raw log by the mcap library (schemas and channels inside its chunks; non-canonical JSON)."""
+    with open(path, "wb") as fh:
+        w = Writer(fh, compression=compression, use_chunking=chunked, chunk_size=500)
+        w.start(library="other-logger")
+        w.add_metadata("survey", {"json": json.dumps({"scenario": "foreign"})})
+        imu = w.register_channel("/imu", "json", w.register_schema("trackfusion.Imu", "jsonschema", b"{}"),
+                                 metadata={"sensor": "xsens"})
+        odo = w.register_channel("/odometer", "json", w.register_schema("trackfusion.Odometer", "jsonschema", b"{}"))
+        for i in range(400):
+            w.add_message(imu, log_time=10**7 * (i + 1), publish_time=0, data=json.dumps(
+                {"angular_velocity": {"x": i * 1e-3, "y": 0, "z": 7e-5},
+                 "linear_acceleration": {"z": 9.8, "x": 0.1, "y": -0.2}, "temp_c": 21.5}, indent=1).encode())
+            if i % 4 == 0:
+                w.add_message(odo, log_time=10**7 * (i + 1) + 3, publish_time=0,
+                              data=json.dumps({"ticks": i, "distance_m": i * 0.01}).encode())
+        w.finish()
+
+
+@pytest.mark.parametrize("compression", [CompressionType.ZSTD, CompressionType.LZ4, CompressionType.NONE])
+def test_raw_records_are_copied_byte_for_byte_from_any_writer(tmp_path, compression):
+    _foreign(tmp_path / "raw.mcap", compression, chunked=True)
+    log = read_log(tmp_path / "raw.mcap")
+    assert log.source is not None and log.source.message_counts == {1: 400, 2: 100}
+    write_fused_mcap(tmp_path / "fused.mcap", _table(), ORIGIN, raw=log)
+    raw, raw_meta, _ = _contents(tmp_path / "raw.mcap")
+    fused, fused_meta, summary = _contents(tmp_path / "fused.mcap")
+    for topic, msgs in raw.items():  # schema, channel metadata, log_time and payload bytes identical
+        assert fused[topic] == msgs, topic
+    assert set(fused) == set(raw) | EXTRA_TOPICS and fused_meta == raw_meta
+    assert summary.statistics.message_count == sum(map(len, fused.values()))
+    assert summary.statistics.channel_message_counts[1] == 400
+    assert {summary.channels[i].topic for i in (1, 2)} == {"/imu", "/odometer"}  # raw channel ids kept
+    assert _scan_file(tmp_path / "fused.mcap", False, None).problem is None  # our own structural checks
+    write_fused_mcap(tmp_path / "again.mcap", _table(), ORIGIN, raw=log)
+    assert (tmp_path / "again.mcap").read_bytes() == (tmp_path / "fused.mcap").read_bytes()
+
+
+def test_our_raw_log_copied_is_what_re_encoding_gives(tmp_path):
+    """For a trackfusion log the copy holds the same messages as writing the arrays again."""
+    write_log(tmp_path / "raw.mcap", small_log(3000))
+    log = read_log(tmp_path / "raw.mcap")
+    write_fused_mcap(tmp_path / "copied.mcap", _table(), ORIGIN, raw=log)
+    log.source = None
+    write_fused_mcap(tmp_path / "encoded.mcap", _table(), ORIGIN, raw=log)
+    copied, meta_c, _ = _contents(tmp_path / "copied.mcap")
+    encoded, meta_e, _ = _contents(tmp_path / "encoded.mcap")
+    assert copied == encoded and meta_c == meta_e and len(copied) == 7 + len(EXTRA_TOPICS)
+
+
+def test_what_cannot_be_copied_is_written_from_the_arrays(tmp_path):
+    """Unchunked messages, a topic subset, the readable part of a damaged file and a file changed
+    since it was read have no source to copy; fused.mcap then encodes the arrays."""
+    _foreign(tmp_path / "flat.mcap", CompressionType.NONE, chunked=False)
+    assert read_log(tmp_path / "flat.mcap").source is None
+    write_log(tmp_path / "raw.mcap", small_log(3000))
+    assert read_log(tmp_path / "raw.mcap", topics=["/imu"]).source is None
+    data = (tmp_path / "raw.mcap").read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[:len(data) // 2])
+    assert read_log(tmp_path / "cut.mcap", allow_truncated=True).source is None
+
+    log = read_log(tmp_path / "raw.mcap")
+    (tmp_path / "raw.mcap").write_bytes(data + b"x")  # (never done to a real input)
+    assert not log.source.unchanged()
+    with pytest.raises(SensorDataError, match="changed since it was read"):
+        copy_log(tmp_path / "x.mcap", log.source)
+    write_fused_mcap(tmp_path / "fused.mcap", _table(), ORIGIN, raw=log)
+    fused, _, _ = _contents(tmp_path / "fused.mcap")
+    imu = [json.loads(m[-1]) for m in fused["/imu"]]
+    assert [m["angular_velocity"]["x"] for m in imu] == log.imu.gyro_radps[:, 0].tolist()
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_pose_and_fix_payloads_are_the_json_of_their_messages():
+    """The printf templates give exactly the compact JSON of the message dicts."""
+    from trackfusion.sensors.fused import _dumps, _pose_and_fix_payloads, _stamp
+
+    rng = np.random.default_rng(3)
+    n = 500
+    ns = np.sort(rng.integers(0, 10**13, n))
+    pos, q, var, llh = (rng.normal(size=(n, k)) * 10.0 ** rng.integers(-12, 8, (n, k)) for k in (3, 4, 3, 3))
+    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, llh)
+    for k in range(n):
+        stamp = _stamp(int(ns[k]))
+        assert poses[k] == _dumps({"timestamp": stamp, "frame_id": "n", "pose": {
+            "position": dict(zip("xyz", pos[k].tolist())), "orientation": dict(zip("xyzw", q[k].tolist()))}})
+        v = var[k].tolist()
+        assert fixes[k] == _dumps({"timestamp": stamp, "frame_id": "n", "latitude": llh[k, 0], "longitude": llh[k, 1],
+                                   "altitude": llh[k, 2], "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0,
+                                                                                  0.0, 0.0, v[2]],
+                                   "position_covariance_type": 2})
+    pos[7, 1] = np.nan
+    with pytest.raises(ValueError):
+        _pose_and_fix_payloads(ns, pos, q, var, llh)
