@@ -504,12 +504,16 @@ def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None]) -> tuple[gtsam.Values, int, float, float]:
-    """Gauss-Newton with step halving. Returns (values, iterations, initial cost, final cost)."""
+                 say: Callable[[str], None]) -> tuple[gtsam.Values, int, float, float, gtsam.GaussianBayesTree]:
+    """Gauss-Newton with step halving. Returns (values, iterations, initial cost, final cost, the
+    Bayes tree of the last linearisation: at the returned values, or one converged step before
+    them, which the marginals reuse instead of eliminating once more)."""
     cost = cost0 = _total_cost(G, values, with_scale)
     it = 0
+    tree = None
     for it in range(1, max_iterations + 1):
-        delta = _eliminate(_linearize(G, values, with_scale)).optimize()
+        tree = _eliminate(_linearize(G, values, with_scale))
+        delta = tree.optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
@@ -524,7 +528,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
         if decrease < rtol:
             break
-    return values, it, cost0, cost
+    return values, it, cost0, cost, tree
 
 
 def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
@@ -762,8 +766,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             + (f" (gating round {round_ + 1})" if gating else ""))
         # a gating round need not converge to the last digit before its gate: the tolerance is
         # tightened once the gate rejects nothing more (below)
-        values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                                             max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
+        values, its, c0, cost, tree = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
+                                                   max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
         iterations += its
         cost0 = c0 if cost0 is None else cost0
         newly_rejected = False
@@ -783,15 +787,18 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             newly_rejected |= bool(np.any(bad))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance
-                values, its, _, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol,
-                                                    say)
+                values, its, _, cost, tree = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
+                                                          rtol, say)
                 iterations += its
             break
     timings["solve_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
-    gfg = _marginal_graph(G, values, with_scale, b.soft)
-    tree = _eliminate(gfg)
+    # the solve's last Bayes tree serves the marginals (linearised at most one converged step
+    # before the estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
+    gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
+    if b.soft.keys:
+        tree = _eliminate(gfg)
     sig_t, sig_pos, sig_att = _marginal_sigmas(tree, values, with_scale, t_key, problem.smoother.marginal_step_s)
     hand_over = None
     if hand_over_t_s is not None:
