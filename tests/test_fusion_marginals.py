@@ -29,8 +29,9 @@ def test_marginals_of_the_last_iteration_equal_a_fresh_linearisation(problem, mo
     solve = smoother.gauss_newton
 
     def fresh_tree(G, values, with_scale, *args):
-        values, its, c0, cost, _ = solve(G, values, with_scale, *args)
-        return values, its, c0, cost, smoother._eliminate(smoother._linearize(G, values, with_scale))
+        sol = solve(G, values, with_scale, *args)
+        sol.tree = smoother._eliminate(smoother._linearize(G, sol.values, with_scale))
+        return sol
 
     monkeypatch.setattr(smoother, "gauss_newton", fresh_tree)
     fresh = smoother.smooth(problem)
