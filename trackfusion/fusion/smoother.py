@@ -487,8 +487,9 @@ def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State
     return gfg
 
 
-def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
-    """Multifrontal QR elimination (COLAMD order).
+def _eliminate(gfg: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering | None = None) -> gtsam.GaussianBayesTree:
+    """Multifrontal QR elimination in ``ordering`` (default: COLAMD's for this graph; the
+    iterations of one solve share one, as their graphs have the same structure).
 
     QR, not Cholesky: the whitened Jacobian spans seven orders of magnitude (navigation-grade
     gyro noise over 0.1 s against a loose NHC or GNSS), which the normal equations square past
@@ -496,7 +497,7 @@ def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
     perfectly determined (measured on the open-track scenario with ``nhc.sigma_mm_per_s: 30``).
     """
     try:
-        return gfg.eliminateMultifrontal(gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR)
+        return gfg.eliminateMultifrontal(ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg), gtsam.EliminateQR)
     except RuntimeError as exc:
         lines = str(exc).splitlines()
         near = [i for i, ln in enumerate(lines) if "near variable" in ln]
@@ -526,9 +527,11 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     state = _State.of(values, with_scale)
     cost = cost0 = _total_cost(G, values, with_scale, state)
     it = 0
-    tree = None
+    tree = ordering = None
     for it in range(1, max_iterations + 1):
-        tree = _eliminate(_linearize(G, values, with_scale, state))
+        gfg = _linearize(G, values, with_scale, state)
+        ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+        tree = _eliminate(gfg, ordering)
         delta = tree.optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
