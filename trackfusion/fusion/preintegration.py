@@ -74,15 +74,23 @@ class ImuNoise:
                    max(spec.accel_bias_ug * 9.80665e-6, 1e-9))
 
 
-def make_params(noise: ImuNoise, gravity_n: np.ndarray, omega_ie_n: np.ndarray) -> gtsam.PreintegrationParams:
-    """GTSAM preintegration parameters for one interval (gravity (3,) and Earth rate (3,) in ``n``)."""
+def make_params(noise: ImuNoise, gravity_n: np.ndarray, omega_ie_n: np.ndarray,
+                covariances: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> gtsam.PreintegrationParams:
+    """GTSAM preintegration parameters for one interval (gravity (3,) and Earth rate (3,) in ``n``);
+    ``covariances``: :func:`noise_covariances` of ``noise`` when already at hand (one per run)."""
+    gyro, accel, integration = covariances or noise_covariances(noise)
     p = gtsam.PreintegrationParams.MakeSharedU(9.8)
     p.n_gravity = np.asarray(gravity_n, dtype=float)
-    p.setGyroscopeCovariance(noise.gyro_psd_rad2ps * np.eye(3))
-    p.setAccelerometerCovariance(noise.accel_psd_m2ps3 * np.eye(3))
-    p.setIntegrationCovariance(INTEGRATION_VAR * np.eye(3))
+    p.setGyroscopeCovariance(gyro)
+    p.setAccelerometerCovariance(accel)
+    p.setIntegrationCovariance(integration)
     p.setOmegaCoriolis(np.asarray(omega_ie_n, dtype=float))
     return p
+
+
+def noise_covariances(noise: ImuNoise) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gyro, accelerometer and integration covariance densities (3,3) of the parameters."""
+    return noise.gyro_psd_rad2ps * np.eye(3), noise.accel_psd_m2ps3 * np.eye(3), INTEGRATION_VAR * np.eye(3)
 
 
 def sculling_compensated(imu: ImuData) -> tuple[np.ndarray, np.ndarray]:
@@ -112,8 +120,9 @@ def preintegrate(imu: ImuData, key_idx: np.ndarray, noise: ImuNoise, gravity_n: 
     dt, f = sculling_compensated(imu)
     w = imu.gyro_radps
     pims, params = [], []
+    covariances = noise_covariances(noise)
     for k in range(key_idx.size - 1):
-        params.append(make_params(noise, gravity_n[k], omega_ie_n))
+        params.append(make_params(noise, gravity_n[k], omega_ie_n, covariances))
         pim = gtsam.PreintegratedImuMeasurements(params[-1], bias_hat)
         integrate = pim.integrateMeasurement
         for i in range(key_idx[k] + 1, key_idx[k + 1] + 1):

@@ -458,8 +458,9 @@ class _Builder:
 
 # --- solving ------------------------------------------------------------------------------------------
 
-def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool) -> float:
-    state = _State.of(values, with_scale)
+def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None) -> float:
+    """Cost at ``values`` (``state``: the same estimate as arrays, when already extracted)."""
+    state = state or _State.of(values, with_scale)
     return G.graph.error(values) + sum(build(state).cost() for _, build in G.builders)
 
 
@@ -477,16 +478,18 @@ def cost_breakdown(G: _Graph, values: gtsam.Values, with_scale: bool) -> dict[st
     return out
 
 
-def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool) -> gtsam.GaussianFactorGraph:
+def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None
+               ) -> gtsam.GaussianFactorGraph:
     gfg = G.graph.linearize(values)
-    state = _State.of(values, with_scale)
+    state = state or _State.of(values, with_scale)
     for _, build in G.builders:
         fx.to_jacobian_factors(build(state), gfg)
     return gfg
 
 
-def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
-    """Multifrontal QR elimination (COLAMD order).
+def _eliminate(gfg: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering | None = None) -> gtsam.GaussianBayesTree:
+    """Multifrontal QR elimination in ``ordering`` (default: COLAMD's for this graph; the
+    iterations of one solve share one, as their graphs have the same structure).
 
     QR, not Cholesky: the whitened Jacobian spans seven orders of magnitude (navigation-grade
     gyro noise over 0.1 s against a loose NHC or GNSS), which the normal equations square past
@@ -494,7 +497,7 @@ def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
     perfectly determined (measured on the open-track scenario with ``nhc.sigma_mm_per_s: 30``).
     """
     try:
-        return gfg.eliminateMultifrontal(gtsam.Ordering.OrderingType.COLAMD, gtsam.EliminateQR)
+        return gfg.eliminateMultifrontal(ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg), gtsam.EliminateQR)
     except RuntimeError as exc:
         lines = str(exc).splitlines()
         near = [i for i, ln in enumerate(lines) if "near variable" in ln]
@@ -503,28 +506,49 @@ def _eliminate(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
                           + (f"; {first}" if first else "") + ")") from None
 
 
+@dataclass
+class _Solved:
+    """What :func:`gauss_newton` returns: the estimate (``values``, and ``state``: the same as
+    arrays), the iterations, the initial and final cost, and the Bayes tree of the last
+    linearisation (at ``values``, or one converged step before them), which the marginals reuse
+    instead of eliminating once more."""
+
+    values: gtsam.Values
+    state: _State
+    iterations: int
+    initial_cost: float
+    cost: float
+    tree: gtsam.GaussianBayesTree
+
+
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None]) -> tuple[gtsam.Values, int, float, float]:
-    """Gauss-Newton with step halving. Returns (values, iterations, initial cost, final cost)."""
-    cost = cost0 = _total_cost(G, values, with_scale)
+                 say: Callable[[str], None]) -> _Solved:
+    """Gauss-Newton with step halving (see :class:`_Solved`)."""
+    state = _State.of(values, with_scale)
+    cost = cost0 = _total_cost(G, values, with_scale, state)
     it = 0
+    tree = ordering = None
     for it in range(1, max_iterations + 1):
-        delta = _eliminate(_linearize(G, values, with_scale)).optimize()
+        gfg = _linearize(G, values, with_scale, state)
+        ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+        tree = _eliminate(gfg, ordering)
+        delta = tree.optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
-            new_cost = _total_cost(G, new, with_scale)
+            new_state = _State.of(new, with_scale)
+            new_cost = _total_cost(G, new, with_scale, new_state)
             if new_cost <= cost:
                 break
             step *= 0.5
         if not new_cost <= cost:
             break
         decrease = (cost - new_cost) / max(cost, 1e-300)
-        values, cost = new, new_cost
+        values, cost, state = new, new_cost, new_state
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
         if decrease < rtol:
             break
-    return values, it, cost0, cost
+    return _Solved(values, state, it, cost0, cost, tree)
 
 
 def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
@@ -536,9 +560,9 @@ def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigm
     return vec @ (lam[:, :, None] * np.swapaxes(vec, -1, -2))
 
 
-def _gnss_nis(G: _Graph, values: gtsam.Values, with_scale: bool) -> np.ndarray:
+def _gnss_nis(G: _Graph, state: _State) -> np.ndarray:
     """Normalised squared residual of each used GNSS fix (3 degrees of freedom, white noise)."""
-    return np.sum(G.gnss(_State.of(values, with_scale)).whitened() ** 2, axis=1)
+    return np.sum(G.gnss(state).whitened() ** 2, axis=1)
 
 
 def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
@@ -552,11 +576,10 @@ def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
         return R_inv @ R_inv.T
 
 
-def _marginal_sigmas(tree: gtsam.GaussianBayesTree, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
+def _marginal_sigmas(tree: gtsam.GaussianBayesTree, state: _State, t_key: np.ndarray,
                      step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
     sel = np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
-    state = _State.of(values, with_scale)
     sig_pos = np.empty((sel.size, 3))
     sig_att = np.empty((sel.size, 3))
     for i, k in enumerate(sel):
@@ -762,18 +785,17 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             + (f" (gating round {round_ + 1})" if gating else ""))
         # a gating round need not converge to the last digit before its gate: the tolerance is
         # tightened once the gate rejects nothing more (below)
-        values, its, c0, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                                             max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
-        iterations += its
-        cost0 = c0 if cost0 is None else cost0
+        sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
+                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
+        values, iterations = sol.values, iterations + sol.iterations
+        cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
         if prism_build is not None:  # total stations (issue 5): gate, mis-lock runs
-            prism_used, newly = gate_prisms(prism_build(_State.of(values, with_scale)), prism_used, prisms,
-                                            fs.total_stations)
+            prism_used, newly = gate_prisms(prism_build(sol.state), prism_used, prisms, fs.total_stations)
             rejected_prism += newly
             newly_rejected = bool(newly)
         if gnss_build is not None:
-            nis = _gnss_nis(G, values, with_scale)
+            nis = _gnss_nis(G, sol.state)
             bad = nis > fs.gnss.gate_chi2
             for i, q in zip(used[bad], nis[bad]):
                 rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
@@ -783,26 +805,27 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             newly_rejected |= bool(np.any(bad))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance
-                values, its, _, cost = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol,
-                                                    say)
-                iterations += its
+                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say)
+                values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
-    gfg = _marginal_graph(G, values, with_scale, b.soft)
-    tree = _eliminate(gfg)
-    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, values, with_scale, t_key, problem.smoother.marginal_step_s)
+    # the solve's last Bayes tree serves the marginals (linearised at most one converged step
+    # before the estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
+    gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
+    tree = _eliminate(gfg) if b.soft.keys else sol.tree
+    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
+    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s)
     hand_over = None
     if hand_over_t_s is not None:
         k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
         hand_over = _hand_over(gfg, values, with_scale, t_key, k, bias_seg, seg, gnss, used)
     timings["marginals_s"] = time.perf_counter() - tic
-    state = _State.of(values, with_scale)
     biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     scale = state.s[seg] if with_scale else None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
-                          sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(cost),
+                          sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(sol.cost),
                           dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
                           station_states=state.ts if prisms is not None else None,
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),

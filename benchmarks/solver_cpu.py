@@ -1,0 +1,82 @@
+"""Benchmark: CPU seconds of the smoother's stages on the speed benchmark's hour of 500 Hz data.
+
+Usage: python benchmarks/solver_cpu.py [--passes N] [--scenario open-track|bridge] [--out FILE]
+The wall times of benchmarks/speed.py and bridge.py swing with the load of a shared machine;
+the process CPU time of the estimation core (preintegrate, build, solve, marginals) does much
+less, so before/after comparisons of the solver are made with this script (run it from each
+tree on the same machine). Reads the log and builds the problem as ``trackfusion run`` does
+(not timed), then smooths it with every stage timed in CPU seconds. ``open-track``: the
+simulation of benchmarks/speed.py (``--passes`` round trips, 4: 57 min); ``bridge``: seed 1
+of benchmarks/bridge.py (53 min). Writes benchmarks/results/solver_cpu.json (solver_cpu_bridge.json).
+Target (issue 4): the estimation core's share of the 60 s hour, about 25 s on a quiet machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
+
+
+def problem(scenario: str, passes: int):
+    """The fusion problem of the cached simulation, as ``trackfusion run`` builds it."""
+    from trackfusion import pipeline as P
+    if scenario == "bridge":
+        from bridge import simulated as bridge_simulated
+        sim = bridge_simulated(1)
+    else:
+        from speed import simulated
+        sim = simulated(passes)
+    pl = P.load_pipeline(sim / "pipeline.yaml")
+    if scenario == "bridge":  # as benchmarks/bridge.py runs it
+        import yaml
+        data = yaml.safe_load((sim / "pipeline.yaml").read_text())
+        data["factors"]["total_stations"] = {"enabled": True, "registration": "graph"}
+        pl = P.parse_pipeline(data, str(sim / "pipeline.yaml"), sim)
+    log, _ = P._read(pl)
+    prob, _ = P.build_problem(pl, log, lambda _m: None)
+    return P._prepare_total_stations(pl, log, prob, lambda _m: None)[0]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--passes", type=int, default=4)
+    ap.add_argument("--scenario", choices=["open-track", "bridge"], default="open-track")
+    ap.add_argument("--out", type=Path, default=None, help="JSON result file (default: results/solver_cpu[_bridge].json)")
+    args = ap.parse_args()
+    prob = problem(args.scenario, args.passes)
+    from trackfusion.fusion import smoother
+    wall, cpu = time.perf_counter(), time.process_time()
+    real_clock = time.perf_counter
+    time.perf_counter = time.process_time  # the smoother's own stage timings, in CPU seconds
+    try:
+        res = smoother.smooth(prob)
+    finally:
+        time.perf_counter = real_clock
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    stages = {k: round(v, 2) for k, v in res.timings_s.items()}
+    result = {
+        "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                 cwd=Path(__file__).parent).stdout.strip(),
+        "date": time.strftime("%Y-%m-%d %H:%M"), "scenario": args.scenario,
+        "imu_samples": int(prob.imu.t_s.size), "keyframes": int(res.t_s.size),
+        "factors": sum(res.factor_counts.values()), "iterations": res.iterations,
+        "final_cost": res.final_cost, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_stages_s": stages,
+        "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
+    }
+    out = args.out or (RESULTS if args.scenario == "open-track" else RESULTS.with_name("solver_cpu_bridge.json"))
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"{args.scenario}: {result['imu_samples']} IMU samples, {result['keyframes']} keyframes, "
+          f"{result['factors']} factors, {res.iterations} iterations")
+    print(f"estimation core: {cpu:.1f} CPU s ({wall:.1f} s wall, load {result['load_average_1min']:.1f}): "
+          + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in stages.items()))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
