@@ -556,6 +556,7 @@ def format_summary(result: RunResult) -> str:
     if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
+        lines += faults.summary_lines(m["faults"])
         if "missing_static_period" in m["faults"]:
             miss = m["faults"]["missing_static_period"]
             lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")

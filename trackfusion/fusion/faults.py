@@ -28,7 +28,7 @@ from . import factors as fx
 from .alignment import END_MARGIN_S
 
 __all__ = ["correct_clock_jumps", "gnss_outages", "gnss_degraded_episodes", "odometer_slips",
-           "prism_mislocks", "prism_gaps", "summarise_faults", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M",
+           "prism_mislocks", "prism_gaps", "summarise_faults", "summary_lines", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M",
            "PRISM_GAP_MIN_S"]
 
 #: an interval between fixes longer than this many nominal intervals is an outage
@@ -287,6 +287,23 @@ def summarise_faults(found: dict[str, list | dict | None], gnss_fixes: int | Non
             entry["fraction"] = len(events) / gnss_fixes
         out[name] = entry
     return out
+
+
+def summary_lines(faults: dict[str, Any], limit: int = 5) -> list[str]:
+    """Terminal lines (``pipeline.format_summary``) for the located faults of a ``faults``
+    section: each total-station mis-lock and gap, each clock jump (at most ``limit`` per kind)."""
+    how = {"prism_mislocks": "mis-locked", "prism_gaps": "lost the prism"}
+    lines = []
+    for kind, verb in how.items():
+        events = faults.get(kind, {}).get("events", [])
+        lines += [f"  {e['station']} {verb} {e['start_s']:.1f}-{e['end_s']:.1f} s"
+                  + (f" ({e['readings']} readings rejected)" if "readings" in e else "") for e in events[:limit]]
+        if len(events) > limit:
+            lines.append(f"  ... {len(events) - limit} more {kind} in metrics.json")
+    jumps = faults.get("clock_jumps", {}).get("events", [])
+    lines += [f"  {e['topic']} clock jump of {e['step_s'] * 1e3:+.1f} ms at {e['t_s']:.1f} s, corrected"
+              for e in jumps[:limit]]
+    return lines
 
 
 def detected_faults(problem, result, found: dict[str, Any]) -> dict[str, Any]:
