@@ -121,6 +121,7 @@ def _imu(truth, sid, t_station):
     return (np.asarray(t_station) - truth[sid]["clock_offset_s"]) / (1.0 + 1e-6 * truth[sid]["clock_drift_ppm"])
 
 
+@pytest.mark.slow
 def test_mislock_reported_with_its_interval(faulty_run):
     result, truth, mis, _, _ = faulty_run
     ev = result.metrics["faults"]["prism_mislocks"]["events"]
@@ -130,6 +131,7 @@ def test_mislock_reported_with_its_interval(faulty_run):
     assert abs(ev[0]["readings"] - mis["readings"]) <= 2
 
 
+@pytest.mark.slow
 def test_gap_reported_with_its_interval_and_hand_overs_are_not_gaps(faulty_run):
     result, truth, _, gap, _ = faulty_run
     ev = result.metrics["faults"]["prism_gaps"]["events"]
@@ -139,6 +141,7 @@ def test_gap_reported_with_its_interval_and_hand_overs_are_not_gaps(faulty_run):
     assert abs(ev[0]["readings_missing"] - gap["readings_removed"]) <= 2
 
 
+@pytest.mark.slow
 def test_station_clock_jump_corrected_to_2_ms(faulty_run):
     result, truth, _, _, jump = faulty_run
     ev = [e for e in result.metrics["faults"]["clock_jumps"]["events"] if e["topic"] == "/total_station/TS02"]
@@ -151,6 +154,7 @@ def test_station_clock_jump_corrected_to_2_ms(faulty_run):
     assert not [e for e in result.metrics["faults"]["clock_jumps"]["events"] if e["topic"] != "/total_station/TS02"]
 
 
+@pytest.mark.slow
 def test_faults_in_summary_and_report(faulty_run):
     result, *_ = faulty_run
     text = format_summary(result)
