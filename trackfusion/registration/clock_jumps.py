@@ -28,7 +28,8 @@ positions stay continuous in space while the stamps step. Where the trolley move
 a cubic in station time through the station's own readings (``STATION_WINDOW_S`` on each side)
 with a step term gives ``J`` a second time, without the odometer. The two must agree (within 4 sigma and 2 ms); otherwise the
 step is not the station's clock (the fusion's odometer slip detection sees it) and is left
-alone. At rest the stamps cannot show it and the odometer's estimate is taken.
+alone. At rest (or with fewer than 4 readings on a side of the split) the stamps cannot show it
+and the odometer's estimate is taken.
 
 **Decision.** A step with ``|J| / sigma_J > Z_MIN`` is a jump. When ``sigma_J`` is within
 ``MAX_SIGMA_S`` it is removed from every later time stamp of the station (then the next is
@@ -189,9 +190,9 @@ def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset
             break
         J, sigma, i = found["J"], found["sigma"], found["first_after"]
         t_imu = float(t_st[i] - offset_s)
-        if abs(found["speed"]) > MIN_SPEED_MPS:  # moving: the station's own stamps must show it
-            i0, i1 = np.searchsorted(t_st, [t_st[i] - STATION_WINDOW_S, t_st[i - 1] + STATION_WINDOW_S])
-            J_st, s_st = _station_only_step(t_st, pos, cov, int(i0), int(i1), i)
+        i0, i1 = (int(x) for x in np.searchsorted(t_st, [t_st[i] - STATION_WINDOW_S, t_st[i - 1] + STATION_WINDOW_S]))
+        if abs(found["speed"]) > MIN_SPEED_MPS and min(i - i0, i1 - i) >= 4:  # the station's stamps must show it
+            J_st, s_st = _station_only_step(t_st, pos, cov, i0, i1, i)
             if not abs(J_st - J) <= max(AGREE_SIGMA * np.hypot(sigma, s_st), AGREE_S):
                 excluded[found["window"][0]:found["window"][1]] = True   # not the station's clock
                 continue
