@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from trackfusion.errors import RegistrationError
-from trackfusion.fusion.faults import prism_gaps, prism_mislocks, summary_lines
+from trackfusion.errors import RegistrationError, SensorDataError
+from trackfusion.fusion.faults import correct_clock_jumps, prism_gaps, prism_mislocks, summary_lines
 from trackfusion.pipeline import format_summary, parse_pipeline, run
 from trackfusion.registration.clock_jumps import correct_station_clock_jumps
 from trackfusion.sensors.mcap_log import read_log, write_log
@@ -86,6 +86,20 @@ def test_mislock_episodes_from_rejected_runs():
     assert ev == [{"station": "TS01", "start_s": pytest.approx(5.1), "end_s": pytest.approx(8.0), "readings": 30}]
     lines = summary_lines({"prism_mislocks": {"count": 1, "events": ev}})
     assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected)"]
+
+
+def test_inclinometer_clock_jump_sub_period_corrected_else_refused():
+    """The inclinometer's data say nothing about time (pipeline: zeros as data): a sub-period
+    step is corrected, a step with lost samples is refused."""
+    t = np.arange(0.0, 60.0, 0.02)
+    jumped = t.copy()
+    jumped[1500:] += 0.007
+    fixed, jumps = correct_clock_jumps(jumped, np.zeros(t.size), "/inclinometer", "log.mcap", noise=1.0)
+    assert [j["index"] for j in jumps] == [1500] and abs(jumps[0]["step_s"] - 0.007) < 1e-9
+    np.testing.assert_allclose(fixed, t, atol=1e-9)
+    jumped[1500:] += 0.02                                   # 27 ms: one period more, and a phase step
+    with pytest.raises(SensorDataError, match=r"log.mcap: /inclinometer record 1500 .* the data cannot tell"):
+        correct_clock_jumps(jumped, np.zeros(t.size), "/inclinometer", "log.mcap", noise=1.0)
 
 
 # --- end to end -----------------------------------------------------------------------------------------
