@@ -113,9 +113,9 @@ GAP = {"start_after_s": 70.0, "duration_s": 10.0}
 JUMP = {"after_s": 20.0, "step_s": 0.04}
 
 
-@pytest.fixture(scope="module")
-def faulty_run(tmp_path_factory):
-    d = tmp_path_factory.mktemp("bridge-faults")
+def _faulty_run(d):
+    """The short bridge survey with TS01 mis-locked, TS01 losing the prism and TS02's clock
+    jumping, run; returns (result, truth of the stations, the three injections' info)."""
     simulate_to_dir("bridge-total-station", d, seed=4, overrides=SHORT)
     log = read_log(d / "log.mcap")
     t1, t2 = log.total_stations["TS01"].t_s[0], log.total_stations["TS02"].t_s[0]
@@ -135,9 +135,7 @@ def _imu(truth, sid, t_station):
     return (np.asarray(t_station) - truth[sid]["clock_offset_s"]) / (1.0 + 1e-6 * truth[sid]["clock_drift_ppm"])
 
 
-@pytest.mark.slow
-def test_mislock_reported_with_its_interval(faulty_run):
-    result, truth, mis, _, _ = faulty_run
+def _check_mislock(result, truth, mis):
     ev = result.metrics["faults"]["prism_mislocks"]["events"]
     assert [e["station"] for e in ev] == ["TS01"]
     t_true = _imu(truth, "TS01", mis["t_s"])                 # the mis-locked readings on the IMU clock
@@ -145,34 +143,39 @@ def test_mislock_reported_with_its_interval(faulty_run):
     assert abs(ev[0]["readings"] - mis["readings"]) <= 2
 
 
-@pytest.mark.slow
-def test_gap_reported_with_its_interval_and_hand_overs_are_not_gaps(faulty_run):
-    result, truth, _, gap, _ = faulty_run
+def _check_gap(result, truth, gap):
     ev = result.metrics["faults"]["prism_gaps"]["events"]
-    assert len(ev) == 1 and ev[0]["station"] == "TS01"
+    assert len(ev) == 1 and ev[0]["station"] == "TS01"       # the hand-overs are no gaps
     t0, t1 = _imu(truth, "TS01", [gap["start_s"], gap["end_s"]])
     assert abs(ev[0]["start_s"] - t0) <= 0.2 and abs(ev[0]["end_s"] - t1) <= 0.2
     assert abs(ev[0]["readings_missing"] - gap["readings_removed"]) <= 2
 
 
-@pytest.mark.slow
-def test_station_clock_jump_corrected_to_2_ms(faulty_run):
-    result, truth, _, _, jump = faulty_run
-    ev = [e for e in result.metrics["faults"]["clock_jumps"]["events"] if e["topic"] == "/total_station/TS02"]
-    assert len(ev) == 1
+def _check_clock_jump(result, truth, jump):
+    events = result.metrics["faults"]["clock_jumps"]["events"]
+    assert [e["topic"] for e in events] == ["/total_station/TS02"]
     offset = result.metrics["time_sync"]["TS02"]["offset_s"]
     true_offset = truth["TS02"]["clock_offset_s"]
-    assert abs(offset - true_offset) < 2e-3                                    # before the jump
-    assert abs(offset + ev[0]["step_s"] - (true_offset + jump["step_s"])) < 2e-3   # after it
-    assert abs(ev[0]["t_s"] - _imu(truth, "TS02", jump["at_s"])) < 0.2
-    assert not [e for e in result.metrics["faults"]["clock_jumps"]["events"] if e["topic"] != "/total_station/TS02"]
+    assert abs(offset - true_offset) < 2e-3                                        # before the jump
+    assert abs(offset + events[0]["step_s"] - (true_offset + jump["step_s"])) < 2e-3   # after it
+    assert abs(events[0]["t_s"] - _imu(truth, "TS02", jump["at_s"])) < 0.2
 
 
-@pytest.mark.slow
-def test_faults_in_summary_and_report(faulty_run):
-    result, *_ = faulty_run
+def _check_summary_and_report(result):
     text = format_summary(result)
     assert "prism_mislocks 1" in text and "prism_gaps 1" in text and "TS01 mis-locked" in text
     assert "TS01 lost the prism" in text and "/total_station/TS02 clock jump of +4" in text
     html = (result.out_dir / "report.html").read_text()
     assert "<h3>prism_mislocks (1)</h3>" in html and "<h3>prism_gaps (1)</h3>" in html
+
+
+@pytest.mark.slow
+def test_short_bridge_with_a_mislock_a_gap_and_a_station_clock_jump(tmp_path):
+    """One run (one test, so that two xdist workers do not each run it): the mis-lock and the
+    gap in metrics.json faults with their intervals to about a reading, the clock jump corrected
+    to 2 ms, all three in the summary and the report."""
+    result, truth, mis, gap, jump = _faulty_run(tmp_path)
+    _check_mislock(result, truth, mis)
+    _check_gap(result, truth, gap)
+    _check_clock_jump(result, truth, jump)
+    _check_summary_and_report(result)
