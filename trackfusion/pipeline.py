@@ -311,6 +311,8 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     if use_inclinometer:
         inc = log.inclinometer
         t = preprocess.sensor_times_to_imu_clock(inc.t_s, sensors.inclinometer.clock_offset_s)
+        t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)  # issue 8
+        info["clock_jumps"] += jumps
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
     tr = cfg.trolley
     problem = FusionProblem(
@@ -454,6 +456,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
              "odometer_gross_errors": info.get("odometer_gross_errors")}
     problem, survey = _prepare_total_stations(pipeline, log, problem, say)
+    if survey is not None:  # issue 8: total-station clock jumps (registration/clock_jumps.py)
+        found["clock_jumps"] += survey.info["clock_jumps"]
     timings["preprocess_s"] = time.perf_counter() - tic
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
@@ -560,6 +564,7 @@ def format_summary(result: RunResult) -> str:
     if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
+        lines += faults.summary_lines(m["faults"])
         if "missing_static_period" in m["faults"]:
             miss = m["faults"]["missing_static_period"]
             lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")

@@ -9,6 +9,9 @@
 * :func:`odometer_slips`: intervals where the odometer disagrees with the smoothed motion
   (IMU, NHC, GNSS), from the odometer factor's residuals after the solve (the Huber loss has
   already down-weighted them).
+* :func:`prism_mislocks`, :func:`prism_gaps`: total-station readings of another reflector
+  (the gate's mis-lock runs) and intervals in which a station lost the prism while no other
+  station was tracking it.
 * :func:`summarise_faults`: the ``faults`` section from everything detected.
 
 Pure maths on arrays; times on the IMU clock [s].
@@ -25,7 +28,8 @@ from . import factors as fx
 from .alignment import END_MARGIN_S
 
 __all__ = ["correct_clock_jumps", "gnss_outages", "gnss_degraded_episodes", "odometer_slips",
-           "summarise_faults", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M"]
+           "prism_mislocks", "prism_gaps", "summarise_faults", "summary_lines", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M",
+           "PRISM_GAP_MIN_S"]
 
 #: an interval between fixes longer than this many nominal intervals is an outage
 OUTAGE_FACTOR = 3.0
@@ -34,6 +38,9 @@ OUTAGE_FACTOR = 3.0
 SLIP_WHITENED_THRESHOLD = 8.0
 #: smallest distance discrepancy [m] reported as a slip episode
 SLIP_MIN_M = 2e-3
+#: a station's interval without readings is a gap when it lasts longer than this [s] (and
+#: than ``OUTAGE_FACTOR`` reading intervals)
+PRISM_GAP_MIN_S = 1.0
 
 
 def _runs(mask: np.ndarray, bridge: int = 0) -> list[tuple[int, int]]:
@@ -184,6 +191,80 @@ def odometer_slips(t_key_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, sca
     return out
 
 
+# --- total stations ----------------------------------------------------------------------------------
+
+def prism_mislocks(t_s: np.ndarray, station: np.ndarray, station_ids: list[str], mislocked: np.ndarray
+                   ) -> list[dict[str, Any]]:
+    """Mis-lock episodes: runs of consecutive readings of one station that the gate rejected as
+    ``mis_lock`` (registration/mislock.py). ``t_s`` (N,) reading times [s] sorted, ``station``
+    (N,) index into ``station_ids``, ``mislocked`` (N,) bool. One ``{"station", "start_s",
+    "end_s", "readings"}`` per run (first and last mis-locked reading)."""
+    out = []
+    for j, sid in enumerate(station_ids):
+        mine = np.flatnonzero(station == j)
+        for a, b in _runs(mislocked[mine]):
+            out.append({"station": sid, "start_s": float(t_s[mine[a]]), "end_s": float(t_s[mine[b]]),
+                        "readings": int(b - a + 1)})
+    return sorted(out, key=lambda e: (e["start_s"], e["station"]))
+
+
+def _tracked_intervals(t: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """(R, 2) [start, end] of the runs of readings ``t`` (sorted) with no interval above ``max_gap_s``."""
+    cut = np.flatnonzero(np.diff(t) > max_gap_s)
+    return np.column_stack([np.r_[t[0], t[cut + 1]], np.r_[t[cut], t[-1]]])
+
+
+def _covered_s(a: float, b: float, intervals: np.ndarray) -> float:
+    """Length [s] of [a, b] covered by the (disjoint) ``intervals`` (R, 2)."""
+    if intervals.size == 0:
+        return 0.0
+    return float(np.clip(np.minimum(intervals[:, 1], b) - np.maximum(intervals[:, 0], a), 0.0, None).sum())
+
+
+def prism_gaps(t_s: np.ndarray, station: np.ndarray, station_ids: list[str]) -> list[dict[str, Any]]:
+    """Intervals in which a station lost the prism: between two of its readings, longer than
+    ``PRISM_GAP_MIN_S`` and ``OUTAGE_FACTOR`` median reading intervals, and at most half covered
+    by another station's tracking (a hand-over: the prism turned to the other station is no
+    gap). Before a station's first and after its last reading it is not expected to track.
+    ``t_s`` (N,) [s] sorted, ``station`` (N,) index into ``station_ids``. One ``{"station",
+    "start_s", "end_s", "duration_s", "readings_missing"}`` per gap (last reading before, first
+    after; readings missing at the median rate)."""
+    per = [np.asarray(t_s[station == j], dtype=float) for j in range(len(station_ids))]
+    limit = [max(PRISM_GAP_MIN_S, OUTAGE_FACTOR * float(np.median(np.diff(t)))) if t.size > 2 else np.inf
+             for t in per]
+    tracked = [_tracked_intervals(t, g) if t.size > 2 else np.zeros((0, 2)) for t, g in zip(per, limit)]
+    out = []
+    for j, (t, g) in enumerate(zip(per, limit)):
+        if t.size <= 2:
+            continue
+        others = np.concatenate([tracked[i] for i in range(len(per)) if i != j] or [np.zeros((0, 2))])
+        period = float(np.median(np.diff(t)))
+        for k in np.flatnonzero(np.diff(t) > g):
+            a, b = float(t[k]), float(t[k + 1])
+            if _covered_s(a, b, others) <= 0.5 * (b - a):
+                out.append({"station": station_ids[j], "start_s": a, "end_s": b, "duration_s": b - a,
+                            "readings_missing": int(round((b - a) / period)) - 1})
+    return sorted(out, key=lambda e: (e["start_s"], e["station"]))
+
+
+def _prism_faults(prisms, result) -> dict[str, list]:
+    """``prism_mislocks`` and ``prism_gaps`` of a run, on the IMU clock with each station's
+    refined clock offset and drift (as ``rejected_prism`` in metrics.json)."""
+    states = result.station_states if result.station_states is not None else np.zeros((len(prisms.station_ids), 8))
+    q = states[prisms.station]
+    t_imu = prisms.t_s - q[:, 6] - 1e-6 * q[:, 7] * prisms.t_s
+    mis_t = np.array([r["t_s"] for r in result.rejected_prism if r["reason"] == "mis_lock"])
+    mis_sid = np.array([prisms.station_ids.index(r["station"]) for r in result.rejected_prism
+                        if r["reason"] == "mis_lock"], dtype=int)
+    mislocked = np.zeros(prisms.t_s.size, dtype=bool)
+    for j in np.unique(mis_sid):
+        mislocked |= (prisms.station == j) & np.isin(prisms.t_s, mis_t[mis_sid == j])
+    order = np.argsort(t_imu, kind="stable")
+    return {"prism_mislocks": prism_mislocks(t_imu[order], prisms.station[order], prisms.station_ids,
+                                             mislocked[order]),
+            "prism_gaps": prism_gaps(t_imu[order], prisms.station[order], prisms.station_ids)}
+
+
 # --- the metrics section ----------------------------------------------------------------------------
 
 def summarise_faults(found: dict[str, list | dict | None], gnss_fixes: int | None = None) -> dict[str, Any]:
@@ -208,10 +289,28 @@ def summarise_faults(found: dict[str, list | dict | None], gnss_fixes: int | Non
     return out
 
 
+def summary_lines(faults: dict[str, Any], limit: int = 5) -> list[str]:
+    """Terminal lines (``pipeline.format_summary``) for the located faults of a ``faults``
+    section: each total-station mis-lock and gap, each clock jump (at most ``limit`` per kind)."""
+    how = {"prism_mislocks": "mis-locked", "prism_gaps": "lost the prism"}
+    lines = []
+    for kind, verb in how.items():
+        events = faults.get(kind, {}).get("events", [])
+        lines += [f"  {e['station']} {verb} {e['start_s']:.1f}-{e['end_s']:.1f} s"
+                  + (f" ({e['readings']} readings rejected)" if "readings" in e else "") for e in events[:limit]]
+        if len(events) > limit:
+            lines.append(f"  ... {len(events) - limit} more {kind} in metrics.json")
+    jumps = faults.get("clock_jumps", {}).get("events", [])
+    lines += [f"  {e['topic']} clock jump of {e['step_s'] * 1e3:+.1f} ms at {e['t_s']:.1f} s, corrected"
+              for e in jumps[:limit]]
+    return lines
+
+
 def detected_faults(problem, result, found: dict[str, Any]) -> dict[str, Any]:
     """The ``faults`` section of a run: ``found`` (faults seen before fusion: ``truncated_log``,
     ``clock_jumps``, ``odometer_gross_errors``) plus what the smoothed run shows: GNSS outliers
-    (the gate's rejections), RTK-float episodes, outages, odometer slips, and the alignment's
+    (the gate's rejections), RTK-float episodes, outages, odometer slips, total-station mis-locks
+    and gaps, and the alignment's
     fallback when a static period was missing at the start. ``problem``: the
     :class:`~trackfusion.fusion.problem.FusionProblem`; ``result``: its ``SmootherResult``."""
     found = dict(found)
@@ -220,6 +319,8 @@ def detected_faults(problem, result, found: dict[str, Any]) -> dict[str, Any]:
         found["gnss_outliers"] = result.rejected_gnss
         found["gnss_float"] = gnss_degraded_episodes(g.t_s, g.fix_quality)
         found["gnss_outages"] = gnss_outages(g.t_s, (float(problem.imu.t_s[0]), float(problem.imu.t_s[-1])))
+    if problem.prisms is not None:
+        found.update(_prism_faults(problem.prisms, result))
     odo = problem.odometer
     if odo is not None and result.odometer_scale is not None:
         delta = np.diff(np.interp(result.t_s, odo.t_s, odo.distance_m))

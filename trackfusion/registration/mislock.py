@@ -9,11 +9,20 @@ most ``mislock_max_gap`` accepted readings between them belong to the same run. 
 ``mislock_min_run`` or more flagged readings is a **mis-lock**: every reading from its first to
 its last is rejected (a mis-locked station may now and then report a point that happens to
 pass the gate). Shorter runs are isolated **outliers**; only the flagged readings are rejected.
+
+The gate is **progressive**: a round flags only readings whose ``nis`` exceeds both the gate and
+``GROSS_FRACTION`` of the round's largest ``nis``. A reading of another reflector metres away
+(``nis`` ~ 1e7) pulls the first solve, Huber loss or not, and makes good readings around it
+fail the gate too; rejecting the gross readings first and solving again lets those readings
+pass, so the rejected run is the mis-lock and not tens of seconds around it.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+#: a round flags only readings above this fraction of its largest normalised residual
+GROSS_FRACTION = 0.01
 
 
 def classify_flags(flagged: np.ndarray, min_run: int, max_gap: int) -> tuple[np.ndarray, np.ndarray]:
@@ -37,8 +46,10 @@ def gate_prisms(blocks, used: np.ndarray, prisms, settings) -> tuple[np.ndarray,
     """Gate the used readings (indices into ``prisms``, a :class:`~trackfusion.fusion.problem.PrismReadings`)
     whose factors are ``blocks`` (a ``LinearBlocks`` in the same order). ``settings``: the
     total-station factor settings (``gate_chi2``, ``mislock_min_run``, ``mislock_max_gap``).
-    Returns (readings still used, [{"station", "t_s", "reason", "nis"}] newly rejected)."""
+    Returns (readings still used, [{"station", "t_s", "reason", "nis"}] newly rejected). The gate
+    of this round is the larger of ``gate_chi2`` and ``GROSS_FRACTION`` of the largest ``nis``."""
     nis = np.sum(blocks.whitened() ** 2, axis=1)
+    gate = max(settings.gate_chi2, GROSS_FRACTION * float(nis.max())) if nis.size else settings.gate_chi2
     keep = np.ones(used.size, dtype=bool)
     out: list[dict] = []
     sid = prisms.station[used]
@@ -46,7 +57,7 @@ def gate_prisms(blocks, used: np.ndarray, prisms, settings) -> tuple[np.ndarray,
         mine = np.flatnonzero(sid == j)
         if mine.size == 0:
             continue
-        rej, mis = classify_flags(nis[mine] > settings.gate_chi2, settings.mislock_min_run,
+        rej, mis = classify_flags(nis[mine] > gate, settings.mislock_min_run,
                                   settings.mislock_max_gap)
         keep[mine[rej]] = False
         for i, m in zip(mine[rej], mis[rej]):

@@ -1,7 +1,7 @@
 """A total-station survey from readings to fusion input and back to a registration report.
 
 :func:`prepare_prisms`: set-ups (given or resected), readings to ``n``, each station's clock
-synchronised (:mod:`.timesync`), optionally the seed's registration applied
+synchronised (:mod:`.timesync`) and its clock jumps removed (:mod:`.clock_jumps`), optionally the seed's registration applied
 (:mod:`.seed_method`), and the :class:`~trackfusion.fusion.problem.PrismReadings` with the
 priors of each station's correction state.
 
@@ -27,6 +27,7 @@ from ..evaluation.overlap import overlap_residuals, overlap_statistics
 from ..fusion.problem import PrismReadings
 from ..sensors.types import OdometerData, TotalStationData
 from . import timesync
+from .clock_jumps import correct_station_clock_jumps
 from .polar import StationSetup
 from .seed_method import SeedRegistration, overlap_axes, register_seed
 from .stations import ARCSEC, Resection, readings_to_n, station_setup
@@ -51,8 +52,8 @@ class StationPrep:
 
 @dataclass
 class PrismSurvey:
-    """What :func:`prepare_prisms` produced: the stations (in configuration order) and the
-    fusion input."""
+    """What :func:`prepare_prisms` produced: the stations (in configuration order), the fusion
+    input and ``info`` (``clock_jumps``: the stations' corrected clock jumps)."""
 
     stations: dict[str, StationPrep]
     readings: PrismReadings
@@ -81,6 +82,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
                                 "which are not configured")
     prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
     stations: dict[str, StationPrep] = {}
+    clock_jumps: list[dict] = []
     for sid, sc in cfg.stations.items():
         d = data[sid]
         if d.t_s.size == 0:
@@ -97,11 +99,19 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
                                         f"(or give sensors.total_stations.stations.{sid}.clock_offset_s)")
             sync = timesync.synchronise(sid, d.t_s, pos_n, odometer.t_s, odometer.distance_m, fs.time_sync)
             offset = sync.offset_s
+        t_station = d.t_s
+        if odometer is not None:  # issue 8: steps of the station's clock (clock_jumps.py)
+            t_station, jumps = correct_station_clock_jumps(sid, d.t_s, offset, pos_n, cov_n, odometer.t_s,
+                                                           odometer.distance_m)
+            if jumps and sync is not None:  # the correlation again, on the corrected stamps
+                sync = timesync.synchronise(sid, t_station, pos_n, odometer.t_s, odometer.distance_m, fs.time_sync)
+                offset = sync.offset_s
+            clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
         centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
-        stations[sid] = StationPrep(setup, centre, d.t_s - offset, pos_n, cov_n, offset, sync, res)
+        stations[sid] = StationPrep(setup, centre, t_station - offset, pos_n, cov_n, offset, sync, res)
     if fs.registration == "seed":
         _apply_seed_registration(stations, odometer)
-    return PrismSurvey(stations, _readings(stations, cfg, fs))
+    return PrismSurvey(stations, _readings(stations, cfg, fs), {"clock_jumps": clock_jumps})
 
 
 def _apply_seed_registration(stations: dict[str, StationPrep], odometer: OdometerData | None) -> None:

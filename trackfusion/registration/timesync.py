@@ -156,6 +156,37 @@ def _second_peak(lags: np.ndarray, r: np.ndarray, best_lag: float, exclusion_s: 
     return float(rr[far].max()) if far.size else -np.inf
 
 
+def _correlation_peak(station_id: str, t0: np.ndarray, t1: np.ndarray, v: np.ndarray, odo_t: np.ndarray,
+                      odo_d: np.ndarray, coarse: np.ndarray, settings: TimeSyncSettings) -> tuple:
+    """The correlation on the coarse lags, then on the fine grid around its peak: (r_coarse,
+    coarse peak lag, fine lags, r_fine, best lag (parabola), r_max)."""
+    r_coarse = correlation_curve(t0, t1, v, odo_t, odo_d, coarse)
+    if not np.any(np.isfinite(r_coarse)):
+        raise RegistrationError(f"time sync: station {station_id}: no lag in +-{settings.max_lag_s:g} s "
+                                "overlaps the odometer record")
+    c = coarse[int(np.nanargmax(r_coarse))]
+    n_fine = int(np.ceil(2.0 * settings.lag_step_s / settings.fine_step_s))
+    fine = c + settings.fine_step_s * np.arange(-n_fine, n_fine + 1)
+    r_fine = correlation_curve(t0, t1, v, odo_t, odo_d, fine)
+    best, r_max = _parabola_peak(fine, r_fine, int(np.nanargmax(r_fine)))
+    return r_coarse, c, fine, r_fine, best, r_max
+
+
+#: a prism speed further than this many robust sigmas (and 0.1 m/s) from the odometer's is an outlier
+SPEED_OUTLIER_SIGMA = 6.0
+
+
+def _speed_inliers(a: np.ndarray, b: np.ndarray, v: np.ndarray, odo_t: np.ndarray, odo_d: np.ndarray) -> np.ndarray:
+    """Prism speeds (M,) over the IMU-clock intervals [a, b] that agree with the odometer's: the
+    residual to the odometer speed within ``SPEED_OUTLIER_SIGMA`` x 1.4826 x its median absolute
+    deviation (and at least 0.1 m/s). Intervals outside the odometer span are kept."""
+    inside = (a >= odo_t[0]) & (b <= odo_t[-1])
+    res = np.zeros(v.size)
+    res[inside] = v[inside] - reference_speed(a[inside], b[inside], odo_t, odo_d)
+    mad = float(np.median(np.abs(res[inside] - np.median(res[inside])))) if inside.any() else 0.0
+    return np.abs(res) <= max(SPEED_OUTLIER_SIGMA * 1.4826 * mad, 0.1)
+
+
 def synchronise(station_id: str, t_station_s: np.ndarray, prism_pos_n: np.ndarray, odo_t_s: np.ndarray,
                 odo_distance_m: np.ndarray, settings: TimeSyncSettings = TimeSyncSettings(),
                 centre_s: float = 0.0) -> TimeSync:
@@ -189,18 +220,16 @@ def synchronise(station_id: str, t_station_s: np.ndarray, prism_pos_n: np.ndarra
     t0, t1, v = t0[plausible], t1[plausible], v[plausible]
     n_lag = int(np.floor(settings.max_lag_s / settings.lag_step_s + 1e-9))
     coarse = centre_s + settings.lag_step_s * np.arange(-n_lag, n_lag + 1)
-    r_coarse = correlation_curve(t0, t1, v, odo_t, odo_d, coarse)
-    if not np.any(np.isfinite(r_coarse)):
-        raise RegistrationError(f"time sync: station {station_id}: no lag in +-{settings.max_lag_s:g} s "
-                                "overlaps the odometer record")
-    c = coarse[int(np.nanargmax(r_coarse))]
-    n_fine = int(np.ceil(2.0 * settings.lag_step_s / settings.fine_step_s))
-    fine = c + settings.fine_step_s * np.arange(-n_fine, n_fine + 1)
-    r_fine = correlation_curve(t0, t1, v, odo_t, odo_d, fine)
+    peak = _correlation_peak(station_id, t0, t1, v, odo_t, odo_d, coarse, settings)
+    # issue 8: a station locked onto a fixed reflector reports no motion while the trolley moves;
+    # leave out such speed outliers (against the odometer at the first peak) and correlate again
+    keep = _speed_inliers(t0 - peak[4], t1 - peak[4], v, odo_t, odo_d)
+    if not keep.all():
+        t0, t1, v = t0[keep], t1[keep], v[keep]
+        peak = _correlation_peak(station_id, t0, t1, v, odo_t, odo_d, coarse, settings)
+    r_coarse, c, fine, r_fine, best, r_max = peak
     lags = np.r_[coarse[coarse < fine[0]], fine, coarse[coarse > fine[-1]]]
     r = np.r_[r_coarse[coarse < fine[0]], r_fine, r_coarse[coarse > fine[-1]]]
-    j = int(np.nanargmax(r_fine))
-    best, r_max = _parabola_peak(fine, r_fine, j)
     if not r_max >= settings.min_r:
         raise RegistrationError(f"time sync: station {station_id}: best correlation r_max = {r_max:.3f} is "
                                 f"below the limit {settings.min_r:g} (lag {best:.3f} s): the prism speed does "

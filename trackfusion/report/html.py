@@ -298,8 +298,15 @@ def faults_section(m: dict) -> str:
         return ""
     if not faults:
         return _section("faults", "Detected data faults", "<p>No data fault detected.</p>")
-    rows = [{"fault": name, **(v if isinstance(v, dict) else {"detail": v})} for name, v in faults.items()]
-    return _section("faults", "Detected data faults", _table(rows))
+    parts = []  # issue 8: one table per fault kind, one row per event (times on the IMU clock)
+    for name, v in faults.items():
+        if isinstance(v, dict) and isinstance(v.get("events"), list):
+            extra = {k: x for k, x in v.items() if k not in ("count", "events")}
+            parts.append(f"<h3>{_e(name)} ({v['count']})" + (f" – {_e(_fmt(extra))}" if extra else "") + "</h3>"
+                         + _table(v["events"]))
+        else:
+            parts.append(f"<h3>{_e(name)}</h3>" + _kv(_flatten(v) if isinstance(v, dict) else [("detail", v)]))
+    return _section("faults", "Detected data faults", "".join(parts))
 
 
 _CSS = """

@@ -6,9 +6,10 @@ what was injected (the truth the detection is checked against). ``benchmarks/fau
 the tests use them; :data:`INJECTORS` lists them by name with the strengths the benchmark
 runs (``strength`` is each injector's main keyword).
 
-Adding a fault later (e.g. a total station locked onto a wrong target, once prism fusion
-exists) takes one function of the same form, ``inject_x(log, *, strength, **options) ->
-(new_log, info)``, and one :data:`INJECTORS` entry; the benchmark picks it up.
+Adding a fault takes one function of the same form, ``inject_x(log, *, strength, **options) ->
+(new_log, info)``, and one :data:`INJECTORS` entry (faults of any log with GNSS and odometer)
+or :data:`TS_INJECTORS` entry (total-station faults, run on a bridge survey); the benchmark
+picks it up.
 
 Times are on each sensor's own clock [s]; positions are displaced in the local ENU frame of
 each fix [m].
@@ -25,11 +26,12 @@ import numpy as np
 from .. import geodesy
 from ..errors import SimulationError
 from ..sensors import noise
-from ..sensors.types import GnssData, ImuData, OdometerData, SensorLog
+from ..sensors.aiding import TotalStationSpec
+from ..sensors.types import GnssData, ImuData, OdometerData, SensorLog, TotalStationData
 
 __all__ = ["inject_gnss_outliers", "inject_gnss_float", "inject_gnss_outage", "inject_odometer_slip",
            "inject_odometer_gross_errors", "inject_clock_jump", "drop_static_start", "inject_imu_saturation",
-           "motion_start_s", "INJECTORS", "Injector"]
+           "motion_start_s", "inject_prism_mislock", "inject_prism_gap", "INJECTORS", "TS_INJECTORS", "Injector"]
 
 
 def _copy(log: SensorLog) -> SensorLog:
@@ -152,23 +154,96 @@ def inject_odometer_gross_errors(log: SensorLog, *, strength: float = 0.03, coun
     return out, {"fault": "odometer_gross_errors", "t_s": o.t_s[idx].tolist(), "magnitude_m": strength}
 
 
+def _stream(log: SensorLog, topic: str):
+    """The data of ``topic`` (``/gnss``, ``/odometer``, ``/inclinometer``, ``/total_station/<id>``)."""
+    if topic.startswith("/total_station/"):
+        return _need(log.total_stations.get(topic.split("/", 2)[2]), topic)
+    return _need(getattr(log, topic.strip("/"), None), topic)
+
+
+def _with_stream(log: SensorLog, topic: str, data) -> SensorLog:
+    """A copy of ``log`` with ``topic``'s data replaced by ``data``."""
+    out = _copy(log)
+    if topic.startswith("/total_station/"):
+        out.total_stations[topic.split("/", 2)[2]] = data
+    else:
+        setattr(out, topic.strip("/"), data)
+    return out
+
+
 def inject_clock_jump(log: SensorLog, *, strength: float = 0.3, topic: str = "/gnss", at_s: float | None = None
                       ) -> tuple[SensorLog, dict]:
-    """Every time stamp of ``topic`` (``/gnss`` or ``/odometer``) from ``at_s`` on moves by
-    ``strength`` [s] (a clock step; the data are unchanged). ``at_s`` default: 60 s after the
-    motion starts (or mid-run without an odometer)."""
-    name = topic.strip("/")
-    data = _need(getattr(log, name, None), topic)
+    """Every time stamp of ``topic`` (``/gnss``, ``/odometer``, ``/inclinometer`` or
+    ``/total_station/<id>``) from ``at_s`` on (the sensor's own clock) moves by ``strength`` [s]
+    (a clock step; the data are unchanged). ``at_s`` default: 60 s after the motion starts (or
+    mid-run without an odometer); for a total station, 100 s after its first reading."""
+    data = _stream(log, topic)
     if at_s is None:
-        at_s = _moving_time(log, 60.0) if log.odometer is not None else float(np.median(data.t_s))
+        if topic.startswith("/total_station/"):
+            at_s = float(data.t_s[0]) + 100.0
+        else:
+            at_s = _moving_time(log, 60.0) if log.odometer is not None else float(np.median(data.t_s))
     t = data.t_s.copy()
     after = t >= at_s
     t[after] += strength
     if np.any(np.diff(t) <= 0):
         raise SimulationError(f"fault injection: a clock jump of {strength} s at {at_s} s makes {topic} go backwards")
-    out = _copy(log)
-    setattr(out, name, replace(getattr(out, name), t_s=t))
-    return out, {"fault": "clock_jump", "topic": topic, "at_s": float(at_s), "step_s": strength}
+    return _with_stream(log, topic, replace(data, t_s=t)), {"fault": "clock_jump", "topic": topic, "at_s": float(at_s),
+                                                           "step_s": strength}
+
+
+# --- total stations (times on the station's clock) ---------------------------------------------------
+
+def _station_window(log: SensorLog, station: str, start_s: float | None, duration_s: float
+                    ) -> tuple[TotalStationData, np.ndarray, float]:
+    """The station's readings, the mask of those in [start, start + duration_s) and start [s,
+    station clock]; ``start_s`` default: 50 s after the station's first reading."""
+    ts = _stream(log, f"/total_station/{station}")
+    start = float(ts.t_s[0]) + 50.0 if start_s is None else float(start_s)
+    sel = (ts.t_s >= start) & (ts.t_s < start + duration_s)
+    if not sel.any():
+        raise SimulationError(f"fault injection: station {station} has no readings in [{start}, {start + duration_s}) s")
+    return ts, sel, start
+
+
+def inject_prism_mislock(log: SensorLog, *, strength: float = 10.0, station: str = "TS01",
+                         start_s: float | None = None, offset_m: float = 8.0, moving: bool = False,
+                         seed: int = 0) -> tuple[SensorLog, dict]:
+    """``station`` reads another reflector for ``strength`` [s] from ``start_s`` (station clock;
+    default 50 s after its first reading). Static (default): a fixed reflector ``offset_m``
+    beside the line of sight to the prism at the first mis-locked reading, read with the
+    instrument's noise (``TotalStationSpec`` defaults: 0.5", 3 mm). ``moving``: a reflector
+    travelling with the prism, ``offset_m`` beside it (the horizontal angle turned by
+    ``offset_m`` / horizontal distance, reading by reading)."""
+    ts, sel, start = _station_window(log, station, start_s, strength)
+    hz, zen, dist = ts.horizontal_angle_rad.copy(), ts.zenith_angle_rad.copy(), ts.slope_distance_m.copy()
+    idx = np.flatnonzero(sel)
+    if not moving:
+        rng = np.random.default_rng(seed)
+        spec = TotalStationSpec.model_fields
+        sig_a = np.radians(spec["angle_sigma_arcsec"].default / 3600.0)
+        k = idx.size
+        hz[idx] = hz[idx[0]] + rng.standard_normal(k) * sig_a
+        zen[idx] = zen[idx[0]] + rng.standard_normal(k) * sig_a
+        dist[idx] = dist[idx[0]] + rng.standard_normal(k) * spec["distance_sigma_mm"].default * 1e-3
+    hz[idx] = np.mod(hz[idx] + offset_m / (dist[idx] * np.sin(zen[idx])), 2 * np.pi)
+    new = replace(ts, horizontal_angle_rad=hz, zenith_angle_rad=zen, slope_distance_m=dist)
+    return _with_stream(log, f"/total_station/{station}", new), {
+        "fault": "prism_mislock", "station": station, "start_s": start, "end_s": start + strength,
+        "readings": int(idx.size), "t_s": ts.t_s[idx].tolist(), "offset_m": offset_m, "moving": moving}
+
+
+def inject_prism_gap(log: SensorLog, *, strength: float = 30.0, station: str = "TS01", start_s: float | None = None
+                     ) -> tuple[SensorLog, dict]:
+    """``station`` loses lock for ``strength`` [s] from ``start_s`` (station clock; default 50 s
+    after its first reading): its readings in that interval are removed."""
+    ts, sel, start = _station_window(log, station, start_s, strength)
+    keep = ~sel
+    new = TotalStationData(ts.station_id, ts.t_s[keep], ts.horizontal_angle_rad[keep], ts.zenith_angle_rad[keep],
+                           ts.slope_distance_m[keep], ts.prism_id[keep])
+    return _with_stream(log, f"/total_station/{station}", new), {
+        "fault": "prism_gap", "station": station, "start_s": start, "end_s": start + strength,
+        "readings_removed": int(sel.sum())}
 
 
 def drop_static_start(log: SensorLog, *, strength: float = 0.0, ends: tuple[str, ...] = ("start",)
@@ -231,4 +306,17 @@ INJECTORS: dict[str, Injector] = {
     "missing_static_both_ends": Injector(lambda log, *, strength: drop_static_start(log, strength=strength,
                                                                                    ends=("start", "end")),
                                          (0.0,), "s inside the motion", "missing_static_period"),
+}
+
+#: total-station faults ``benchmarks/faults.py`` injects into a short bridge survey (TS01), by name
+TS_INJECTORS: dict[str, Injector] = {
+    "prism_mislock": Injector(inject_prism_mislock, (2.0, 10.0, 30.0), "s (static reflector 8 m aside)",
+                              "prism_mislocks"),
+    "prism_mislock_moving": Injector(lambda log, *, strength: inject_prism_mislock(log, strength=10.0,
+                                                                                   offset_m=strength, moving=True),
+                                     (0.02, 0.1, 0.5), "m (10 s, reflector moving along)", "prism_mislocks"),
+    "prism_gap": Injector(inject_prism_gap, (5.0, 30.0, 120.0), "s", "prism_gaps"),
+    "station_clock_jump": Injector(lambda log, *, strength: inject_clock_jump(log, strength=strength,
+                                                                              topic="/total_station/TS01"),
+                                   (0.02, 0.05, 0.2), "s", "clock_jumps"),
 }
