@@ -132,3 +132,19 @@ def test_pose_and_fix_payloads_are_the_json_of_their_messages():
     pos[7, 1] = np.nan
     with pytest.raises(ValueError):
         _pose_and_fix_payloads(ns, pos, q, var, llh)
+
+
+def test_inspect_summarises_a_fused_log_with_its_foxglove_topics(tmp_path, capsys):
+    from trackfusion.cli import main
+    from trackfusion.sensors.mcap_log import inspect_log
+    write_log(tmp_path / "raw.mcap", small_log())
+    raw = read_log(tmp_path / "raw.mcap")
+    write_fused_mcap(tmp_path / "fused.mcap", _table(), ORIGIN, raw=raw)
+    summary = {t.topic: t for t in inspect_log(tmp_path / "fused.mcap").topics}
+    assert summary["/imu"].count == raw.imu.t_s.size and summary["/imu"].schema == "trackfusion.Imu"
+    pose = summary["/trajectory/pose"]
+    assert pose.schema == "foxglove.PoseInFrame" and pose.count == 30  # 100 Hz rows, poses at 10 Hz
+    assert pose.first_s == pytest.approx(0.5) and pose.rate_hz == pytest.approx(10.0)
+    assert summary["/trajectory/path"].count == 1
+    assert main(["inspect", str(tmp_path / "fused.mcap")]) == 0
+    assert "foxglove.LocationFix" in capsys.readouterr().out

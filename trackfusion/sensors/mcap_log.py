@@ -1333,14 +1333,28 @@ def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     return _sensor(ch.topic, schema, t_s, arrays)
 
 
-def _read(p: Path, wanted: set[str] | None, allow_truncated: bool) -> tuple[SensorLog, _Scan]:
-    """read_log, also returning the file's structural scan."""
+#: the topics fused.mcap adds to the raw log's (sensors/fused.py): summarised by inspect, not read
+FUSED_TOPIC_PREFIXES = ("/trajectory/", "/track/")
+
+
+def _read(p: Path, wanted: set[str] | None, allow_truncated: bool,
+          others: list[tuple[str, str, np.ndarray]] | None = None) -> tuple[SensorLog, _Scan]:
+    """read_log, also returning the file's structural scan. With ``others`` (a list), fused.mcap's
+    own topics (FUSED_TOPIC_PREFIXES, with a ``foxglove.*`` schema: trajectory and rails) are
+    not refused: each is appended as (topic, schema name, sorted log times [s]), its payloads not
+    decoded. Any other unknown topic is refused as by read_log."""
     scan = _scan_file(p, allow_truncated, wanted)
     log = SensorLog()
     seen: dict[str, int] = {}
     try:
         for cid, ch in scan.channels.items():
             try:
+                schema = scan.schemas.get(ch.schema_id, ("", ""))[0]
+                if others is not None and ch.topic.startswith(FUSED_TOPIC_PREFIXES) and schema.startswith("foxglove."):
+                    ns = np.sort(np.concatenate(ch.times)) if ch.times else np.zeros(0, np.uint64)
+                    others.append((ch.topic, schema, ns / 1e9))
+                    ch.payloads, ch.times, ch.batches = [], [], []
+                    continue
                 schema = _channel_schema(scan, ch)
                 if ch.topic in seen:
                     raise _Bad(0, f"topic on two channels (ids {seen[ch.topic]} and {cid})")
@@ -1430,9 +1444,12 @@ def summarise_times(topic: str, schema: str, t_s: np.ndarray) -> TopicSummary:
 
 
 def inspect_log(path: str | Path) -> LogSummary:
-    """Check a log fully (as :func:`read_log`, strict) and summarise it per topic."""
+    """Check a log fully (as :func:`read_log`, strict) and summarise it per topic. fused.mcap's own
+    topics (FUSED_TOPIC_PREFIXES: trajectory, fixes and rails, ``foxglove.*`` schemas) are
+    summarised from their log times, after the sensor topics, without decoding their payloads."""
     p = Path(path)
-    log, scan = _read(p, None, allow_truncated=False)
+    others: list[tuple[str, str, np.ndarray]] = []
+    log, scan = _read(p, None, allow_truncated=False, others=others)
     entries: list[tuple[str, str, np.ndarray]] = []
     for topic, schema in schemas.TOPICS.items():
         data = getattr(log, topic[1:])
@@ -1440,4 +1457,5 @@ def inspect_log(path: str | Path) -> LogSummary:
             entries.append((topic, schema, data.t_s))
     for sid, d in sorted(log.total_stations.items()):
         entries.append((schemas.TOTAL_STATION_PREFIX + sid, schemas.TOTAL_STATION_SCHEMA, d.t_s))
+    entries.extend(sorted(others))
     return LogSummary(p, p.stat().st_size, scan.library, [summarise_times(*e) for e in entries], sorted(log.metadata))
