@@ -19,7 +19,7 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Iterator, Literal, Mapping
 
@@ -422,6 +422,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     tic = time.perf_counter()
     say(f"[{cfg.name}] reading {pipeline.path(cfg.inputs.log)}")
     log, damage = _read(pipeline, say)
+    release_free_memory()  # the reader's garbage
     timings["read_s"] = time.perf_counter() - tic
     tic = time.perf_counter()
     problem, info = build_problem(pipeline, log, say)
@@ -440,12 +441,19 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                           f"{np.ceil(duration_s):.0f} (or null)")
     with _staging(out) as stage:
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
-            if chunked:  # long runs: memory bounded by the chunk; trajectory.csv written chunk by chunk
-                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say)
+            geometry_imu = None  # the IMU samples the geometry reads, when not the problem's
+            if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
+                from .sensors.spill import SpilledImu
+                spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
+                log.imu = spilled.imu
+                problem = replace(problem, imu=spilled.imu)
+                release_free_memory()  # the IMU arrays and preprocessing's temporaries
+                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say, spilled.release)
                 tic, table = time.perf_counter(), None
-                dense, chainage = stream.geometry_input() if stream.geometry is not None else (None, None)
+                dense, chainage, geometry_imu = stream.geometry_input() if stream.geometry is not None else (None,) * 3
                 fused_table = stream.thinned.columns() if stream.thinned is not None else None
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
+                del stream
             else:
                 res = smooth(problem, say)
                 tic = time.perf_counter()
@@ -467,12 +475,13 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
         from .track.geometry import geometry_for_run
         tic_geometry = time.perf_counter()
-        geometry = geometry_for_run(pipeline, problem, res, dense, chainage, log.gauge)
+        geometry = geometry_for_run(pipeline, problem if geometry_imu is None else replace(problem, imu=geometry_imu),
+                                    res, dense, chainage, log.gauge)
         if geometry is not None:
             metrics["geometry"] = geometry.metrics
             timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
         # --- end track geometry ---
-        del dense, chainage
+        del dense, chainage, geometry_imu
         if cfg.inputs.reference is not None:
             say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
             from .evaluation.reference import compare_with_reference
@@ -494,20 +503,46 @@ FUSED_POSE_RATE_HZ = 10.0
 
 
 def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sink: Callable[[dict], None],
-                     cfg: PipelineConfig, say: Callable[[str], None]):
+                     cfg: PipelineConfig, say: Callable[[str], None], after_chunk: Callable[[], None]):
     """A long run smoothed in chunks (``smoother.chunk_s``, fusion/chunks.py), each chunk's
-    trajectory.csv rows handed to ``sink`` as soon as it is done; returns the keyframe result
-    and the :class:`~trackfusion.fusion.output_rate.StreamedTrajectory` with what the geometry,
-    the reference evaluation and fused.mcap need of the rows."""
+    trajectory.csv rows handed to ``sink`` as soon as it is done (then ``after_chunk()``); returns
+    the keyframe result and the :class:`~trackfusion.fusion.output_rate.StreamedTrajectory`
+    with what the geometry, the reference evaluation and fused.mcap need of the rows."""
     from .fusion.chunks import smooth_in_chunks
     from .fusion.output_rate import StreamedTrajectory
     thin_every = max(1, int(round(imu_rate_hz / (FUSED_POSE_RATE_HZ * every))))
     stream = StreamedTrajectory(problem.odometer, problem.trolley.axis_b, sink, problem.imu.t_s.size // every + 1,
                                 thin_every if cfg.outputs.fused_mcap else None,
-                                keep_evaluation=cfg.inputs.reference is not None, keep_geometry=cfg.geometry.enabled)
+                                keep_evaluation=cfg.inputs.reference is not None,
+                                imu=problem.imu if cfg.geometry.enabled else None)
+
+    def on_dense(piece, so_far, last):
+        stream.add(piece, so_far, last)
+        after_chunk()
+        release_free_memory()  # the chunk's graph and temporaries
+
     say("writing the trajectory at the output rate as each chunk is done")
-    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.overlap_s, every, say, on_dense=stream.add)
+    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.overlap_s, every, say, on_dense=on_dense)
     return res, stream
+
+
+def release_free_memory() -> None:
+    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``; elsewhere nothing).
+    Freed small objects (a log's decoded messages, a chunk's factor graph) otherwise keep their
+    pages resident, and a long run's stages would each start from the previous one's high-water mark."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        import ctypes
+        import ctypes.util
+        try:
+            _malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim: Any = None
 
 
 @contextlib.contextmanager

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from ..rotations import quat_from_R
-from ..sensors.types import OdometerData
+from ..sensors.types import ImuData, OdometerData
 from .smoother import SmootherResult
 from .trajectory import DenseTrajectory
 
@@ -98,19 +98,19 @@ class StreamedTrajectory:
     ``sink(columns)`` receives the rows block by block in time order (trajectory.csv columns);
     ``rows_max``: an upper bound of the run's rows; ``thin_every``: keep every that-many-th row
     (all columns, for fused.mcap; None: none); ``keep_evaluation``: keep
-    :data:`EVALUATION_COLUMNS` of every row; ``keep_geometry``: keep the time, attitude, position
-    and chainage of every row. Call :meth:`add` once per chunk with its decimated dense core and
+    :data:`EVALUATION_COLUMNS` of every row; ``imu``: the run's IMU samples, given to keep for the
+    geometry the time, attitude, position, chainage and gyro sample of every row. Call :meth:`add` once per chunk with its decimated dense core and
     the keyframe result of the chunks so far (``last`` for the final chunk).
     """
 
     def __init__(self, odometer: OdometerData | None, axis_b: np.ndarray, sink: Callable[[dict], None],
                  rows_max: int, thin_every: int | None = None, keep_evaluation: bool = False,
-                 keep_geometry: bool = True):
-        self.odometer, self.axis_b, self.sink = odometer, axis_b, sink
+                 imu: ImuData | None = None):
+        self.odometer, self.axis_b, self.sink, self.imu = odometer, axis_b, sink, imu
         self.thin_every, self.rows = thin_every, 0
         self.thinned = _Rows(rows_max // thin_every + 1) if thin_every else None
         self.evaluation = _Rows(rows_max) if keep_evaluation else None
-        self.geometry = _Rows(rows_max) if keep_geometry else None
+        self.geometry = _Rows(rows_max) if imu is not None else None
         self._pending: DenseTrajectory | None = None
         self._before: tuple[np.ndarray, np.ndarray, float] | None = None
 
@@ -134,10 +134,15 @@ class StreamedTrajectory:
         if self.evaluation is not None:
             self.evaluation.append({k: table[k] for k in EVALUATION_COLUMNS})
         if self.geometry is not None:
-            self.geometry.append({"t_s": ready.t_s, "R_nb": ready.R_nb, "pos_n": ready.pos_n, "chainage_m": chainage})
+            gyro = self.imu.gyro_radps[np.searchsorted(self.imu.t_s, ready.t_s)]
+            self.geometry.append({"t_s": ready.t_s, "R_nb": ready.R_nb, "pos_n": ready.pos_n, "chainage_m": chainage,
+                                  "gyro_radps": gyro})
         self.rows += n_ready
 
-    def geometry_input(self) -> tuple[DenseTrajectory, np.ndarray]:
-        """The kept pose at every row (velocity left out: the geometry does not use it) and its chainage."""
+    def geometry_input(self) -> tuple[DenseTrajectory, np.ndarray, ImuData]:
+        """The kept pose at every row (velocity left out: the geometry does not use it), its
+        chainage, and the IMU samples at the rows' times (gyro only)."""
         g = self.geometry.columns()
-        return DenseTrajectory(g["t_s"], g["R_nb"], g["pos_n"], np.empty((0, 3))), g["chainage_m"]
+        empty = np.empty((0, 3))
+        return (DenseTrajectory(g["t_s"], g["R_nb"], g["pos_n"], empty), g["chainage_m"],
+                ImuData(g["t_s"], g["gyro_radps"], empty))

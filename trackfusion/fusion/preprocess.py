@@ -64,12 +64,16 @@ def _moving_std(x: np.ndarray, n: int) -> np.ndarray:
     cumulative sums. ``x`` is centred on its median first, so the sums stay small and the
     difference of cumulative sums keeps its precision over millions of samples."""
     xc = x - np.median(x)
-    c1 = np.concatenate(([0.0], np.cumsum(xc)))
-    c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
-    s1 = c1[n:] - c1[:-n]
-    s2 = c2[n:] - c2[:-n]
-    var = (s2 - s1 * s1 / n) / (n - 1)
-    return np.sqrt(np.maximum(var, 0.0))
+    c = np.zeros(x.size + 1)  # one cumulative-sum buffer, filled in place (long runs: memory)
+    np.cumsum(xc, out=c[1:])
+    s1 = c[n:] - c[:-n]
+    np.multiply(xc, xc, out=xc)
+    np.cumsum(xc, out=c[1:])
+    del xc
+    var = c[n:] - c[:-n]
+    var -= s1 * s1 / n
+    var /= n - 1
+    return np.sqrt(np.maximum(var, 0.0, out=var), out=var)
 
 
 def _odometer_quiet(t_a: np.ndarray, t_b: np.ndarray, odometer: OdometerData,
@@ -93,9 +97,14 @@ def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
     """Mean (N - n + 1, 3) of ``x`` (N, 3) over the windows ``x[k:k+n]``, by cumulative sums of
     ``x`` centred on its median (precision over millions of samples)."""
-    med = np.median(x, axis=0)
-    c = np.concatenate((np.zeros((1, x.shape[1])), np.cumsum(x - med, axis=0)))
-    return (c[n:] - c[:-n]) / n + med
+    med = np.array([np.median(x[:, i]) for i in range(x.shape[1])])  # a column's copy at a time
+    c = np.zeros((x.shape[0] + 1, x.shape[1]))  # filled in place (long runs: memory)
+    np.subtract(x, med, out=c[1:])
+    np.cumsum(c[1:], axis=0, out=c[1:])
+    mean = c[n:] - c[:-n]
+    mean /= n
+    mean += med
+    return mean
 
 
 def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
@@ -258,9 +267,15 @@ def _raw_predictions_m(t_s: np.ndarray, d_m: np.ndarray, window: int) -> np.ndar
     """One-step cubic predictions (N,) [m] of every sample from the ``window`` raw samples
     before it; NaN for the first ``window`` samples."""
     pred = np.full(d_m.shape, np.nan)
-    pred[window:] = _cubic_extrapolate_m(sliding_window_view(t_s[:-1], window),
-                                         sliding_window_view(d_m[:-1], window), t_s[window:])
+    t_hist, d_hist = sliding_window_view(t_s[:-1], window), sliding_window_view(d_m[:-1], window)
+    for a in range(0, t_hist.shape[0], _PREDICTION_BLOCK):  # blocks bound the (K, window) temporaries
+        s = slice(a, a + _PREDICTION_BLOCK)
+        pred[window + a:window + a + _PREDICTION_BLOCK] = _cubic_extrapolate_m(t_hist[s], d_hist[s], t_s[window:][s])
     return pred
+
+
+#: samples per block of :func:`_raw_predictions_m` (each row's fit is independent of the others)
+_PREDICTION_BLOCK = 65536
 
 
 def _predict_one_m(t_s: np.ndarray, d_m: np.ndarray, i: int, window: int) -> float:
