@@ -462,7 +462,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                                 geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-                table = fused_table = evaluation_table = trajectory_table(dense, res, chainage, every)
+                table = evaluation_table = trajectory_table(dense, res, chainage, every)
+                fused_table = None
                 writer.write(table)
         timings.update(res.timings_s)
         metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
@@ -492,7 +493,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         metrics["timings_s"] = timings
         metrics["run_time_s"] = timings["total_s"]
         say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-        files = write_outputs(stage, out, fused_table, metrics, problem.origin, cfg, geometry, raw=log)
+        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log, fused_table=fused_table)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     from .sensors.fileio import CsvTableOnDisk
     return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
@@ -570,12 +571,13 @@ def _trajectory_writer(path: Path, origin: geodesy.Origin, cfg: PipelineConfig):
 
 
 def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, metrics: dict,
-                  origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None
-                  ) -> list[str]:
+                  origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None,
+                  fused_table: dict[str, np.ndarray] | None = None) -> list[str]:
     """Write the outputs but trajectory.csv into the staging folder ``stage`` (:func:`_staging`;
     ``out`` is the folder they go to); returns the names of all staged files. ``table``: the
-    trajectory columns fused.mcap shows (a long run's: its rows at :data:`FUSED_POSE_RATE_HZ`;
-    None without fused.mcap); ``raw``: the input log as read, whose topics fused.mcap carries."""
+    whole trajectory.csv table, or None when it is only on disk (a run in chunks);
+    ``fused_table``: the trajectory rows fused.mcap shows when not ``table`` (a long run's rows
+    at :data:`FUSED_POSE_RATE_HZ`); ``raw``: the input log as read, whose topics fused.mcap carries."""
     from .sensors.fileio import write_csv_table, write_json_atomic
     from .sensors.fused import write_fused_mcap
     write_json_atomic(stage / "metrics.json", metrics)
@@ -584,7 +586,8 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
                         fmt="%.12g", extra=geometry.sidecar())
     # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
     if cfg.outputs.fused_mcap:
-        write_fused_mcap(stage / "fused.mcap", table, origin, max_rate_hz=FUSED_POSE_RATE_HZ, raw=raw,
+        write_fused_mcap(stage / "fused.mcap", table if fused_table is None else fused_table, origin,
+                         max_rate_hz=FUSED_POSE_RATE_HZ, raw=raw,
                          geometry=geometry.table if geometry is not None else None)
     if cfg.outputs.report:
         from .report.html import write_report

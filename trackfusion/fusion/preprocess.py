@@ -94,17 +94,15 @@ def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
 
 
-def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
-    """Mean (N - n + 1, 3) of ``x`` (N, 3) over the windows ``x[k:k+n]``, by cumulative sums of
-    ``x`` centred on its median (precision over millions of samples)."""
+def _centred_cumsum(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cumulative sums (N + 1, 3) of ``x`` (N, 3) centred on its median (3,), and that median: the
+    mean over the window ``x[k:k+n]`` is ``(c[k+n] - c[k]) / n + med`` (centring keeps the
+    precision over millions of samples; the buffer is filled in place, for long runs' memory)."""
     med = np.array([np.median(x[:, i]) for i in range(x.shape[1])])  # a column's copy at a time
-    c = np.zeros((x.shape[0] + 1, x.shape[1]))  # filled in place (long runs: memory)
+    c = np.zeros((x.shape[0] + 1, x.shape[1]))
     np.subtract(x, med, out=c[1:])
     np.cumsum(c[1:], axis=0, out=c[1:])
-    mean = c[n:] - c[:-n]
-    mean /= n
-    mean += med
-    return mean
+    return c, med
 
 
 def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
@@ -115,11 +113,11 @@ def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) ->
     accelerates, which moves the mean specific force by the acceleration long before the
     vibration of rolling shows in the standard deviation of the norm (a raised-cosine start of
     0.4 m/s^2 reaches 5 mm/s^2 within 0.6 s, at 1 mm/s). The median is the rest value as long as
-    less than half a run is motion."""
-    mean = _moving_mean(x, n)
+    less than half a run is motion. (Window means only inside the runs.)"""
+    c, med = _centred_cumsum(x)
     steady = np.ones(quiet.size, dtype=bool)
     for a, b in zip(*_true_runs(quiet)):
-        m = mean[a:b + 1]
+        m = (c[a + n:b + n + 1] - c[a:b + 1]) / n + med
         steady[a:b + 1] = np.linalg.norm(m - np.median(m, axis=0), axis=1) < threshold
     return steady
 
