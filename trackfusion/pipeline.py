@@ -528,9 +528,12 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
 
 
 def release_free_memory() -> None:
-    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``; elsewhere nothing).
-    Freed small objects (a log's decoded messages, a chunk's factor graph) otherwise keep their
-    pages resident, and a long run's stages would each start from the previous one's high-water mark."""
+    """Collect garbage and hand the C heap's free pages back to the system (glibc
+    ``malloc_trim``; elsewhere only the collection). Freed small objects (a log's decoded
+    messages, a chunk's factor graph) otherwise keep their pages resident, and each chunk of a
+    long run would start from the previous one's high-water mark (measured: 15 MB a chunk)."""
+    import gc
+    gc.collect()
     global _malloc_trim
     if _malloc_trim is None:
         import ctypes
