@@ -71,9 +71,18 @@ def _moving_std(x: np.ndarray, n: int) -> np.ndarray:
     np.cumsum(xc, out=c[1:])
     del xc
     var = c[n:] - c[:-n]
-    var -= s1 * s1 / n
+    del c
+    np.multiply(s1, s1, out=s1)
+    s1 /= n
+    var -= s1
     var /= n - 1
     return np.sqrt(np.maximum(var, 0.0, out=var), out=var)
+
+
+def _norms(x: np.ndarray) -> np.ndarray:
+    """Row norms (N,) of ``x`` (N, 3), in one buffer."""
+    sq = np.einsum("ij,ij->i", x, x)
+    return np.sqrt(sq, out=sq)
 
 
 def _odometer_quiet(t_a: np.ndarray, t_b: np.ndarray, odometer: OdometerData,
@@ -84,8 +93,12 @@ def _odometer_quiet(t_a: np.ndarray, t_b: np.ndarray, odometer: OdometerData,
     t_odo = _times_s(odometer.t_s, "odometer", 2)
     d_odo = _samples(odometer.distance_m, t_odo.size, "odometer", "distance_m")
     step_s = float(np.median(np.diff(t_odo)))
-    speed_mps = np.abs(np.interp(t_b, t_odo, d_odo) - np.interp(t_a, t_odo, d_odo)) / (t_b - t_a)
-    return (speed_mps < max_speed_mps) & (t_a >= t_odo[0] - step_s) & (t_b <= t_odo[-1] + step_s)
+    quiet = np.empty(t_a.size, dtype=bool)
+    for k in range(0, t_a.size, _PREDICTION_BLOCK):  # blocks bound the temporaries (long runs)
+        a, b = t_a[k:k + _PREDICTION_BLOCK], t_b[k:k + _PREDICTION_BLOCK]
+        speed_mps = np.abs(np.interp(b, t_odo, d_odo) - np.interp(a, t_odo, d_odo)) / (b - a)
+        quiet[k:k + _PREDICTION_BLOCK] = (speed_mps < max_speed_mps) & (a >= t_odo[0] - step_s) & (b <= t_odo[-1] + step_s)
+    return quiet
 
 
 def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,8 +205,7 @@ def detect_static_intervals(imu: ImuData, odometer: OdometerData | None = None, 
     gyro = _samples(imu.gyro_radps, t.size, "imu", "gyro_radps", 3)
     accel = _samples(imu.accel_mps2, t.size, "imu", "accel_mps2", 3)
 
-    quiet = ((_moving_std(np.sqrt(np.einsum("ij,ij->i", gyro, gyro)), n) < gyro_std_radps)
-             & (_moving_std(np.sqrt(np.einsum("ij,ij->i", accel, accel)), n) < accel_std_mps2))
+    quiet = ((_moving_std(_norms(gyro), n) < gyro_std_radps) & (_moving_std(_norms(accel), n) < accel_std_mps2))
     t_a, t_b = t[: t.size - n + 1], t[n - 1:]
     quiet &= (t_b - t_a) <= _GAP_FACTOR * (n - 1) * dt_s
     if odometer is not None:
