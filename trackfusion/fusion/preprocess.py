@@ -107,15 +107,36 @@ def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
 
 
-def _centred_cumsum(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cumulative sums (N + 1, 3) of ``x`` (N, 3) centred on its median (3,), and that median: the
-    mean over the window ``x[k:k+n]`` is ``(c[k+n] - c[k]) / n + med`` (centring keeps the
-    precision over millions of samples; the buffer is filled in place, for long runs' memory)."""
-    med = np.array([np.median(x[:, i]) for i in range(x.shape[1])])  # a column's copy at a time
-    c = np.zeros((x.shape[0] + 1, x.shape[1]))
-    np.subtract(x, med, out=c[1:])
-    np.cumsum(c[1:], axis=0, out=c[1:])
-    return c, med
+class _CentredCumsum:
+    """Rows of the cumulative sums ``c`` (N + 1, k) of ``x - med`` (``x`` (N, k), ``med`` its
+    column medians), made on demand for increasing row ranges: the mean over the window
+    ``x[j:j+n]`` is ``(c[j+n] - c[j]) / n + med``. The sums are sequential from the previous
+    range's rows (the values of one cumulative sum over the whole run, without its buffer:
+    long runs' memory); centring keeps the precision over millions of samples."""
+
+    def __init__(self, x: np.ndarray):
+        self.x = x
+        self.med = np.array([np.median(x[:, i]) for i in range(x.shape[1])])  # a column's copy at a time
+        self.lo, self.rows_ = 0, np.zeros((1, x.shape[1]))  # c[lo : lo + len(rows_)]
+
+    def _from(self, start: np.ndarray, a: int, b: int) -> np.ndarray:
+        """c[a : b + 1] from c[a] = ``start``."""
+        out = np.empty((b - a + 1, self.x.shape[1]))
+        out[0] = start
+        np.subtract(self.x[a:b], self.med, out=out[1:])
+        return np.cumsum(out, axis=0, out=out)
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        """c[a : b] (a at least the previous call's ``a``)."""
+        if a >= self.lo + len(self.rows_):  # walk on to row a in blocks
+            at, start = self.lo + len(self.rows_) - 1, self.rows_[-1]
+            while at < a:
+                step = min(a, at + _PREDICTION_BLOCK)
+                start, at = self._from(start, at, step)[-1], step
+            self.lo, self.rows_ = a, start[None]
+        self.rows_ = self._from(self.rows_[a - self.lo], a, b - 1)
+        self.lo = a
+        return self.rows_
 
 
 def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
@@ -127,10 +148,11 @@ def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) ->
     vibration of rolling shows in the standard deviation of the norm (a raised-cosine start of
     0.4 m/s^2 reaches 5 mm/s^2 within 0.6 s, at 1 mm/s). The median is the rest value as long as
     less than half a run is motion. (Window means only inside the runs.)"""
-    c, med = _centred_cumsum(x)
+    c = _CentredCumsum(x)
     steady = np.ones(quiet.size, dtype=bool)
     for a, b in zip(*_true_runs(quiet)):
-        m = (c[a + n:b + n + 1] - c[a:b + 1]) / n + med
+        rows = c.rows(a, b + n + 1)  # c[a .. b + n]
+        m = (rows[n:] - rows[:-n]) / n + c.med
         steady[a:b + 1] = np.linalg.norm(m - np.median(m, axis=0), axis=1) < threshold
     return steady
 
