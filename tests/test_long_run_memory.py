@@ -78,3 +78,16 @@ def test_spilled_imu_has_the_same_samples_and_releases_its_pages(tmp_path):
     spilled.release()
     assert _resident_kb(spilled.imu.gyro_radps) < 0.1 * touched
     np.testing.assert_array_equal(spilled.imu.accel_mps2[-5:], imu.accel_mps2[-5:])  # read again from the file
+
+
+def test_spill_arrays_keep_what_is_written_after_release(tmp_path):
+    from trackfusion.sensors.spill import SpillArrays
+
+    rows = SpillArrays(tmp_path)
+    a = rows.empty((100_000, 3))
+    assert list(tmp_path.iterdir()) == [] and not a.any()
+    values = np.random.default_rng(2).normal(size=a.shape)
+    a[:] = values
+    rows.release()
+    assert _resident_kb(a) < 0.1 * a.nbytes / 1024
+    np.testing.assert_array_equal(a, values)

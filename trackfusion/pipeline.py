@@ -443,12 +443,19 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = None  # the IMU samples the geometry reads, when not the problem's
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
-                from .sensors.spill import SpilledImu
+                from .sensors.spill import SpillArrays, SpilledImu
                 spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
                 log.imu = spilled.imu
                 problem = replace(problem, imu=spilled.imu)
                 release_free_memory()  # the IMU arrays and preprocessing's temporaries
-                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say, spilled.release)
+                kept = SpillArrays(out.parent)  # the rows the geometry reads at the end
+
+                def after_chunk():
+                    spilled.release()
+                    kept.release()
+
+                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say, after_chunk,
+                                               kept.empty)
                 tic, table = time.perf_counter(), None
                 dense, chainage, geometry_imu = stream.geometry_input() if stream.geometry is not None else (None,) * 3
                 fused_table = stream.thinned.columns() if stream.thinned is not None else None
@@ -504,9 +511,11 @@ FUSED_POSE_RATE_HZ = 10.0
 
 
 def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sink: Callable[[dict], None],
-                     cfg: PipelineConfig, say: Callable[[str], None], after_chunk: Callable[[], None]):
+                     cfg: PipelineConfig, say: Callable[[str], None], after_chunk: Callable[[], None],
+                     empty: Callable[[tuple], np.ndarray] = np.empty):
     """A long run smoothed in chunks (``smoother.chunk_s``, fusion/chunks.py), each chunk's
-    trajectory.csv rows handed to ``sink`` as soon as it is done (then ``after_chunk()``); returns
+    trajectory.csv rows handed to ``sink`` as soon as it is done (then ``after_chunk()``; the kept
+    rows in arrays from ``empty(shape)``); returns
     the keyframe result and the :class:`~trackfusion.fusion.output_rate.StreamedTrajectory`
     with what the geometry, the reference evaluation and fused.mcap need of the rows."""
     from .fusion.chunks import smooth_in_chunks
@@ -515,7 +524,7 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
     stream = StreamedTrajectory(problem.odometer, problem.trolley.axis_b, sink, problem.imu.t_s.size // every + 1,
                                 thin_every if cfg.outputs.fused_mcap else None,
                                 keep_evaluation=cfg.inputs.reference is not None,
-                                imu=problem.imu if cfg.geometry.enabled else None)
+                                imu=problem.imu if cfg.geometry.enabled else None, empty=empty)
 
     def on_dense(piece, so_far, last):
         stream.add(piece, so_far, last)

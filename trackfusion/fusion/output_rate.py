@@ -67,8 +67,8 @@ class _Rows:
     """Columns filled block by block into arrays allocated once for ``rows_max`` rows (the
     pages of the unused tail are never touched, so they cost no memory)."""
 
-    def __init__(self, rows_max: int):
-        self.rows_max, self.n, self.arrays = rows_max, 0, {}
+    def __init__(self, rows_max: int, empty: Callable[[tuple], np.ndarray] = np.empty):
+        self.rows_max, self.n, self.arrays, self.empty = rows_max, 0, {}, empty
 
     def append(self, columns: dict[str, np.ndarray]) -> None:
         k = len(next(iter(columns.values())))
@@ -76,7 +76,7 @@ class _Rows:
             raise ValueError(f"more than the {self.rows_max} rows allocated")
         for name, v in columns.items():
             if name not in self.arrays:
-                self.arrays[name] = np.empty((self.rows_max,) + v.shape[1:])
+                self.arrays[name] = self.empty((self.rows_max,) + v.shape[1:])
             self.arrays[name][self.n:self.n + k] = v
         self.n += k
 
@@ -99,18 +99,19 @@ class StreamedTrajectory:
     ``rows_max``: an upper bound of the run's rows; ``thin_every``: keep every that-many-th row
     (all columns, for fused.mcap; None: none); ``keep_evaluation``: keep
     :data:`EVALUATION_COLUMNS` of every row; ``imu``: the run's IMU samples, given to keep for the
-    geometry the time, attitude, position, chainage and gyro sample of every row. Call :meth:`add` once per chunk with its decimated dense core and
+    geometry the time, attitude, position, chainage and gyro sample of every row (in arrays
+    from ``empty(shape)``, e.g. :meth:`~trackfusion.sensors.spill.SpillArrays.empty`). Call :meth:`add` once per chunk with its decimated dense core and
     the keyframe result of the chunks so far (``last`` for the final chunk).
     """
 
     def __init__(self, odometer: OdometerData | None, axis_b: np.ndarray, sink: Callable[[dict], None],
                  rows_max: int, thin_every: int | None = None, keep_evaluation: bool = False,
-                 imu: ImuData | None = None):
+                 imu: ImuData | None = None, empty: Callable[[tuple], np.ndarray] = np.empty):
         self.odometer, self.axis_b, self.sink, self.imu = odometer, axis_b, sink, imu
         self.thin_every, self.rows = thin_every, 0
         self.thinned = _Rows(rows_max // thin_every + 1) if thin_every else None
         self.evaluation = _Rows(rows_max) if keep_evaluation else None
-        self.geometry = _Rows(rows_max) if imu is not None else None
+        self.geometry = _Rows(rows_max, empty) if imu is not None else None
         self._pending: DenseTrajectory | None = None
         self._before: tuple[np.ndarray, np.ndarray, float] | None = None
 
