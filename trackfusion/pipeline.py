@@ -441,7 +441,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                           f"{np.ceil(duration_s):.0f} (or null)")
     with _staging(out) as stage:
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
-            geometry_imu = None  # the IMU samples the geometry reads, when not the problem's
+            geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
                 from .sensors.spill import SpillArrays, SpilledImu
                 spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
@@ -490,6 +490,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
             timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
         # --- end track geometry ---
         del dense, chainage, geometry_imu
+        if kept is not None:
+            kept.release()  # the geometry's rows, read back for it
         if cfg.inputs.reference is not None:
             say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
             from .evaluation.reference import compare_with_reference
