@@ -111,3 +111,49 @@ def test_chunked_sigmas_equal_the_batch_ones(runs):
     for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m"):
         ratio = chunked.trajectory[c] / batch.trajectory[c]
         assert 0.8 < ratio.min() and ratio.max() < 1.25, (c, ratio.min(), ratio.max())
+
+
+# --- long runs stream their output (fusion/output_rate.py, sensors/fileio.py CsvTableWriter) ---
+
+def test_streamed_trajectory_csv_is_the_whole_run_table(runs):
+    """The chunked run writes trajectory.csv chunk by chunk; its bytes are those of the one-piece
+    writer given the table of the whole chunked trajectory (chunks.py without ``on_dense``)."""
+    from trackfusion.fusion.chunks import smooth_in_chunks
+    from trackfusion.pipeline import TRAJECTORY_UNITS, _decimation, build_problem, chainage_along, trajectory_table
+    from trackfusion.sensors.fileio import write_csv_table
+    from trackfusion.sensors.mcap_log import read_log
+
+    d, _, chunked = runs
+    pipeline = parse_pipeline(yaml.safe_load((d / "pipeline.yaml").read_text()), str(d / "pipeline.yaml"), d)
+    problem, _ = build_problem(pipeline, read_log(d / "log.mcap"), lambda _m: None)
+    every = _decimation(1.0 / np.median(np.diff(problem.imu.t_s)), pipeline.config.outputs.trajectory_rate_hz)
+    res, dense = smooth_in_chunks(problem, CHUNK_S, OVERLAP_S, every)
+    table = trajectory_table(dense, res, chainage_along(dense, res, problem.odometer, problem.trolley.axis_b), 1)
+    write_csv_table(d / "whole.csv", table, TRAJECTORY_UNITS, "n", problem.origin.to_dict(), fmt="%.12g")
+    assert (d / "whole.csv").read_bytes() == (chunked.out_dir / "trajectory.csv").read_bytes()
+    np.testing.assert_array_equal(res.t_s, chunked.smoother.t_s)
+    assert sorted(chunked.files) == ["fused.mcap", "geometry.csv", "geometry.json", "metrics.json", "report.html",
+                                     "trajectory.csv", "trajectory.json"]
+
+
+def test_a_chunked_run_failing_late_leaves_no_output(runs, tmp_path, monkeypatch):
+    """A failure after the first chunks' rows are written: no out/, no staging folder left."""
+    import trackfusion.fusion.chunks as chunks_module
+
+    d = runs[0]
+    calls = []
+    real = chunks_module.smooth
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("chunk 3 fails")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(chunks_module, "smooth", failing)
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    data.setdefault("smoother", {}).update(chunk_s=CHUNK_S, overlap_s=OVERLAP_S)
+    with pytest.raises(RuntimeError, match="chunk 3"):
+        run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out")
+    assert len(calls) == 3
+    assert list(tmp_path.iterdir()) == []

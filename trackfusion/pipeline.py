@@ -14,13 +14,14 @@ written to the output directory unless the whole run succeeds.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Iterator, Literal, Mapping
 
 import numpy as np
 import yaml
@@ -33,7 +34,8 @@ from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.smoother import SmootherResult, smooth
-from .fusion.trajectory import DenseTrajectory, densify
+from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
+from .fusion.trajectory import densify
 from .registration.stations import StationSetupConfig
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
@@ -212,12 +214,14 @@ def _check_inputs(pipeline: Pipeline) -> None:
 
 @dataclass
 class RunResult:
-    """What a run produced: the output folder, file names, the metrics and the trajectory."""
+    """What a run produced: the output folder, file names, the metrics and the trajectory
+    (trajectory.csv columns; for a run smoothed in chunks, read from its trajectory.csv on first
+    access, so that a long run's trajectory is never all in memory)."""
 
     out_dir: Path
     files: list[str]
     metrics: dict[str, Any]
-    trajectory: dict[str, np.ndarray]
+    trajectory: Mapping[str, np.ndarray]
     smoother: SmootherResult
 
 
@@ -390,36 +394,6 @@ def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
     return max(1, int(round(imu_rate_hz / rate_hz)))
 
 
-def chainage_along(dense: DenseTrajectory, res: SmootherResult, odometer: OdometerData | None,
-                   axis_b: np.ndarray) -> np.ndarray:
-    """Chainage [m] at the dense times, 0 at the start: the odometer distance with the smoothed
-    scale removed (``d_true = d_meas / (1 + scale)`` per interval), else the signed path length."""
-    if odometer is not None and res.odometer_scale is not None:
-        d_key = np.interp(res.t_s, odometer.t_s, odometer.distance_m)
-        true_key = np.r_[0.0, np.cumsum(np.diff(d_key) / (1.0 + res.odometer_scale[:-1]))]
-        corr = (d_key - d_key[0]) - true_key
-        d = np.interp(dense.t_s, odometer.t_s, odometer.distance_m) - d_key[0]
-        return d - np.interp(dense.t_s, res.t_s, corr)
-    step = np.diff(dense.pos_n, axis=0)
-    forward = np.einsum("kij,j,ki->k", dense.R_nb[:-1], axis_b, step)
-    return np.r_[0.0, np.cumsum(np.sign(forward) * np.linalg.norm(step, axis=1))]
-
-
-def trajectory_table(dense: DenseTrajectory, res: SmootherResult, chainage_m: np.ndarray, every: int
-                     ) -> dict[str, np.ndarray]:
-    """trajectory.csv columns (DESIGN.md section 4) at every ``every``-th dense sample."""
-    sel = np.arange(0, dense.t_s.size, every)
-    t = dense.t_s[sel]
-    q = quat_from_R(dense.R_nb[sel])
-    sp = np.column_stack([np.interp(t, res.sigma_t_s, res.sigma_pos_n_m[:, i]) for i in range(3)])
-    sa = np.column_stack([np.interp(t, res.sigma_t_s, res.sigma_att_rad[:, i]) for i in range(3)])
-    p, v = dense.pos_n[sel], dense.vel_n[sel]
-    return {"t_s": t, "e_m": p[:, 0], "n_m": p[:, 1], "u_m": p[:, 2], "qw": q[:, 0], "qx": q[:, 1],
-            "qy": q[:, 2], "qz": q[:, 3], "ve_mps": v[:, 0], "vn_mps": v[:, 1], "vu_mps": v[:, 2],
-            "chainage_m": chainage_m[sel], "sigma_e_m": sp[:, 0], "sigma_n_m": sp[:, 1], "sigma_u_m": sp[:, 2],
-            "sigma_roll_rad": sa[:, 0], "sigma_pitch_rad": sa[:, 1], "sigma_yaw_rad": sa[:, 2]}
-
-
 def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
     deg_h = np.degrees(res.gyro_bias_radps) * 3600.0
     ug = res.accel_bias_mps2 / 9.80665e-6
@@ -450,6 +424,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     tic = time.perf_counter()
     say(f"[{cfg.name}] reading {pipeline.path(cfg.inputs.log)}")
     log, damage = _read(pipeline, say)
+    release_free_memory()  # the reader's garbage
     timings["read_s"] = time.perf_counter() - tic
     tic = time.perf_counter()
     problem, info = build_problem(pipeline, log, say)
@@ -463,92 +438,188 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
     sm = cfg.smoother
     duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
-    if sm.chunk_s is not None and duration_s > sm.chunk_s + sm.overlap_s:
-        if problem.prisms is not None:  # station correction states are not handed over between chunks
-            raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
-                              f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
-                              f"{np.ceil(duration_s):.0f} (or null)")
-        from .fusion.chunks import smooth_in_chunks  # long runs: memory bounded by the chunk
-        res, dense = smooth_in_chunks(problem, sm.chunk_s, sm.overlap_s, every, say)
-        tic, table_every = time.perf_counter(), 1  # dense is already at the output rate
-    else:
-        res = smooth(problem, say)
-        tic, table_every = time.perf_counter(), every
-        dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                        res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                        geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
-    timings.update(res.timings_s)
-    say("writing the trajectory at the output rate")
-    chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-    table = trajectory_table(dense, res, chainage, table_every)
-    metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
-                               "imu_samples": int(problem.imu.t_s.size),
-                               "duration_s": duration_s, "trajectory_rate_hz": float(imu_rate / every),
-                               **_smoother_metrics(res, info),
-                               "faults": faults.detected_faults(problem, res, found)}
-    if survey is not None:
-        metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
-    # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
-    from .track.geometry import geometry_for_run
-    tic_geometry = time.perf_counter()
-    geometry = geometry_for_run(pipeline, problem, res, dense, chainage, log.gauge)
-    if geometry is not None:
-        metrics["geometry"] = geometry.metrics
-        timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
-    # --- end track geometry ---
-    if cfg.inputs.reference is not None:
-        say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
-        from .evaluation.reference import compare_with_reference
-        metrics.update(compare_with_reference(table, pipeline.path(cfg.inputs.reference), problem.origin.to_dict()))
-    timings["output_s"] = time.perf_counter() - tic
-    timings["total_s"] = time.perf_counter() - wall
-    metrics["timings_s"] = timings
-    metrics["run_time_s"] = timings["total_s"]
-    say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-    files = write_outputs(out, table, metrics, problem.origin, cfg, geometry, raw=log)
+    chunked = sm.chunk_s is not None and duration_s > sm.chunk_s + sm.overlap_s
+    if chunked and problem.prisms is not None:  # station correction states are not handed over between chunks
+        raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
+                          f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
+                          f"{np.ceil(duration_s):.0f} (or null)")
+    with _staging(out) as stage:
+        with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
+            geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
+            if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
+                from .sensors.spill import SpillArrays, SpilledImu
+                spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
+                log.imu = spilled.imu
+                problem = replace(problem, imu=spilled.imu)
+                release_free_memory()  # the IMU arrays and preprocessing's temporaries
+                kept = SpillArrays(out.parent)  # the rows the geometry reads at the end
+
+                def after_chunk():
+                    spilled.release()
+                    kept.release()
+
+                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say, after_chunk,
+                                               kept.empty)
+                tic, table = time.perf_counter(), None
+                dense, chainage, geometry_imu = stream.geometry_input() if stream.geometry is not None else (None,) * 3
+                fused_table = stream.thinned.columns() if stream.thinned is not None else None
+                evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
+                del stream
+            else:
+                res = smooth(problem, say)
+                tic = time.perf_counter()
+                dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
+                                res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
+                                geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
+                say("writing the trajectory at the output rate")
+                chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
+                table = evaluation_table = trajectory_table(dense, res, chainage, every)
+                fused_table = None
+                writer.write(table)
+        timings.update(res.timings_s)
+        metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
+                                   "imu_samples": int(problem.imu.t_s.size),
+                                   "duration_s": duration_s, "trajectory_rate_hz": float(imu_rate / every),
+                                   **_smoother_metrics(res, info),
+                                   "faults": faults.detected_faults(problem, res, found)}
+        if survey is not None:
+            metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
+        # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
+        from .track.geometry import geometry_for_run
+        tic_geometry = time.perf_counter()
+        geometry = geometry_for_run(pipeline, problem if geometry_imu is None else replace(problem, imu=geometry_imu),
+                                    res, dense, chainage, log.gauge)
+        if geometry is not None:
+            metrics["geometry"] = geometry.metrics
+            timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
+        # --- end track geometry ---
+        del dense, chainage, geometry_imu
+        if kept is not None:
+            kept.release()  # the geometry's rows, read back for it
+        if cfg.inputs.reference is not None:
+            say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
+            from .evaluation.reference import compare_with_reference
+            metrics.update(compare_with_reference(evaluation_table, pipeline.path(cfg.inputs.reference),
+                                                  problem.origin.to_dict()))
+        timings["output_s"] = time.perf_counter() - tic
+        timings["total_s"] = time.perf_counter() - wall
+        metrics["timings_s"] = timings
+        metrics["run_time_s"] = timings["total_s"]
+        say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
+        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log, fused_table=fused_table)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
-    return RunResult(out, files, metrics, table, res)
+    from .sensors.fileio import CsvTableOnDisk
+    return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
 
 
-def write_outputs(out: Path, table: dict[str, np.ndarray], metrics: dict, origin: geodesy.Origin,
-                  cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None) -> list[str]:
-    """Write every output into a staging folder beside ``out``, then move each file in
-    (``raw``: the input log as read, whose topics fused.mcap carries)."""
-    from .sensors.fileio import write_csv_table, write_json_atomic
-    from .sensors.fused import write_fused_mcap
-    tic_write = time.perf_counter()  # io-speed: timings_s.write_s
+#: rate of the poses in fused.mcap [Hz] (a long run keeps only those rows of its trajectory for it)
+FUSED_POSE_RATE_HZ = 10.0
+
+
+def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sink: Callable[[dict], None],
+                     cfg: PipelineConfig, say: Callable[[str], None], after_chunk: Callable[[], None],
+                     empty: Callable[[tuple], np.ndarray] = np.empty):
+    """A long run smoothed in chunks (``smoother.chunk_s``, fusion/chunks.py), each chunk's
+    trajectory.csv rows handed to ``sink`` as soon as it is done (then ``after_chunk()``; the kept
+    rows in arrays from ``empty(shape)``); returns
+    the keyframe result and the :class:`~trackfusion.fusion.output_rate.StreamedTrajectory`
+    with what the geometry, the reference evaluation and fused.mcap need of the rows."""
+    from .fusion.chunks import smooth_in_chunks
+    from .fusion.output_rate import StreamedTrajectory
+    thin_every = max(1, int(round(imu_rate_hz / (FUSED_POSE_RATE_HZ * every))))
+    stream = StreamedTrajectory(problem.odometer, problem.trolley.axis_b, sink, problem.imu.t_s.size // every + 1,
+                                thin_every if cfg.outputs.fused_mcap else None,
+                                keep_evaluation=cfg.inputs.reference is not None,
+                                imu=problem.imu if cfg.geometry.enabled else None, empty=empty)
+
+    def on_dense(piece, so_far, last):
+        stream.add(piece, so_far, last)
+        after_chunk()
+        release_free_memory()  # the chunk's graph and temporaries
+
+    say("writing the trajectory at the output rate as each chunk is done")
+    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.overlap_s, every, say, on_dense=on_dense)
+    return res, stream
+
+
+def release_free_memory() -> None:
+    """Collect garbage and hand the C heap's free pages back to the system (glibc
+    ``malloc_trim``; elsewhere only the collection). Freed small objects (a log's decoded
+    messages, a chunk's factor graph) otherwise keep their pages resident, and each chunk of a
+    long run would start from the previous one's high-water mark (measured: 15 MB a chunk)."""
+    import gc
+    gc.collect()
+    global _malloc_trim
+    if _malloc_trim is None:
+        import ctypes
+        import ctypes.util
+        try:
+            _malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim: Any = None
+
+
+@contextlib.contextmanager
+def _staging(out: Path) -> Iterator[Path]:
+    """A staging folder beside ``out`` for the run's files: on success each file is moved into
+    ``out`` (created when missing); on failure the folder goes with everything in it, so a
+    failed run leaves nothing in ``out`` (not even part of a trajectory.csv)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
     try:
-        write_csv_table(stage / "trajectory.csv", table, TRAJECTORY_UNITS, "n", origin.to_dict(), fmt="%.12g",
-                        extra={"description": "smoothed trajectory of the IMU origin",
-                               "config": cfg.model_dump(mode="json")})
-        write_json_atomic(stage / "metrics.json", metrics)
-        if geometry is not None:  # issue 6: geometry.csv + geometry.json
-            write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
-                            fmt="%.12g", extra=geometry.sidecar())
-        # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
-        if cfg.outputs.fused_mcap:
-            write_fused_mcap(stage / "fused.mcap", table, origin, raw=raw,
-                             geometry=geometry.table if geometry is not None else None)
-        if cfg.outputs.report:
-            from .report.html import write_report
-            tables = {"trajectory.csv": table, **({"geometry.csv": geometry.table} if geometry is not None else {})}
-            write_report(stage, stage / "report.html", shown_dir=out, tables=tables)  # no re-parsing of the CSVs
-        # --- end issue 7 ---
-        # --- io-speed: metrics.json once more, last, with the time the writing took ---
-        timings = metrics.setdefault("timings_s", {})
-        timings["write_s"] = time.perf_counter() - tic_write
-        timings["wall_s"] = timings.get("total_s", 0.0) + timings["write_s"]
-        write_json_atomic(stage / "metrics.json", metrics)
-        # --- end io-speed ---
-        files = sorted(p.name for p in stage.iterdir())
+        yield stage
         out.mkdir(parents=True, exist_ok=True)
-        for name in files:
-            os.replace(stage / name, out / name)
+        for p in sorted(stage.iterdir()):
+            os.replace(p, out / p.name)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
-    return files
+
+
+def _trajectory_writer(path: Path, origin: geodesy.Origin, cfg: PipelineConfig):
+    """trajectory.csv + sidecar, written block by block (:class:`~trackfusion.sensors.fileio.CsvTableWriter`)."""
+    from .sensors.fileio import CsvTableWriter
+    return CsvTableWriter(path, list(TRAJECTORY_UNITS), TRAJECTORY_UNITS, "n", origin.to_dict(), fmt="%.12g",
+                          extra={"description": "smoothed trajectory of the IMU origin",
+                                 "config": cfg.model_dump(mode="json")})
+
+
+def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, metrics: dict,
+                  origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None,
+                  fused_table: dict[str, np.ndarray] | None = None) -> list[str]:
+    """Write the outputs but trajectory.csv into the staging folder ``stage`` (:func:`_staging`;
+    ``out`` is the folder they go to); returns the names of all staged files. ``table``: the
+    whole trajectory.csv table, or None when it is only on disk (a run in chunks);
+    ``fused_table``: the trajectory rows fused.mcap shows when not ``table`` (a long run's rows
+    at :data:`FUSED_POSE_RATE_HZ`); ``raw``: the input log as read, whose topics fused.mcap carries."""
+    from .sensors.fileio import write_csv_table, write_json_atomic
+    from .sensors.fused import write_fused_mcap
+    tic_write = time.perf_counter()  # timings_s.write_s
+    write_json_atomic(stage / "metrics.json", metrics)
+    if geometry is not None:  # issue 6: geometry.csv + geometry.json
+        write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
+                        fmt="%.12g", extra=geometry.sidecar())
+    # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
+    if cfg.outputs.fused_mcap:
+        write_fused_mcap(stage / "fused.mcap", table if fused_table is None else fused_table, origin,
+                         max_rate_hz=FUSED_POSE_RATE_HZ, raw=raw,
+                         geometry=geometry.table if geometry is not None else None)
+    if cfg.outputs.report:
+        from .report.html import write_report
+        tables = {**({"trajectory.csv": table} if table is not None else {}),  # no re-parsing of these CSVs
+                  **({"geometry.csv": geometry.table} if geometry is not None else {})}
+        write_report(stage, stage / "report.html", shown_dir=out, tables=tables)
+    # --- end issue 7 ---
+    # metrics.json once more, last, with the time the writing took
+    timings = metrics.setdefault("timings_s", {})
+    timings["write_s"] = time.perf_counter() - tic_write
+    timings["wall_s"] = timings.get("total_s", 0.0) + timings["write_s"]
+    write_json_atomic(stage / "metrics.json", metrics)
+    return sorted(p.name for p in stage.iterdir())
 
 
 def format_summary(result: RunResult) -> str:

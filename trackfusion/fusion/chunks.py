@@ -9,10 +9,13 @@ and velocity held at it, bias, odometer scale and the GNSS correlated error carr
 the trajectory is continuous at the seam in position, attitude and velocity; for its
 marginal covariances the hand-over priors take the previous chunk's marginal covariance
 instead. Each chunk's core is densified and decimated to the output rate at once, so the
-IMU-rate trajectory never exists for the whole run either.
+IMU-rate trajectory never exists for the whole run either; with ``on_dense`` the decimated
+core goes to the caller chunk by chunk (the pipeline writes its trajectory.csv rows at once,
+fusion/output_rate.py) and is not kept here.
 
 What stays proportional to the run: the sensor arrays (read by the pipeline) and the
-decimated output trajectory.
+keyframe results (about 40 numbers per keyframe), and without ``on_dense`` the decimated output
+trajectory.
 """
 
 from __future__ import annotations
@@ -89,12 +92,17 @@ def _core(res: SmootherResult, k_end: int, k_start: int, t_lo: float) -> dict[st
 
 
 def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, every: int,
-                     progress: Callable[[str], None] | None = None) -> tuple[SmootherResult, DenseTrajectory]:
+                     progress: Callable[[str], None] | None = None,
+                     on_dense: Callable[[DenseTrajectory, SmootherResult, bool], None] | None = None
+                     ) -> tuple[SmootherResult, DenseTrajectory | None]:
     """Smooth ``problem`` in overlapping chunks (module docstring) and densify it.
 
     Returns the keyframe result of the whole run (arrays concatenated over the chunk cores;
     key_idx global; counts, costs, iterations and timings summed; the alignment of the first
     chunk) and the trajectory at every ``every``-th IMU sample (global index multiple of it).
+    With ``on_dense``, each chunk's piece of that trajectory is passed instead as
+    ``on_dense(piece, result_so_far, last)`` (``result_so_far``: the keyframe result of the
+    chunks done, as returned at the end) and None is returned for it.
     """
     say = progress or (lambda _m: None)
     imu = problem.imu
@@ -121,16 +129,33 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
         dense = densify(sub.imu, res.key_idx[kk], res.R_nb[kk], res.pos_n[kk], res.vel_n[kk],
                         res.gyro_bias_radps[kk], res.accel_bias_mps2[kk],
                         geodesy.gravity_n(res.pos_n[kk], problem.origin), omega_ie_n)
-        dense_parts.append(_decimated(dense, i0 + int(res.key_idx[0]), every, skip_first=join is not None))
+        piece = _decimated(dense, i0 + int(res.key_idx[0]), every, skip_first=join is not None)
+        del dense
         offset = 0 if problem.gnss is None else int(np.searchsorted(problem.gnss.t_s, sub.imu.t_s[0], "left"))
         t_hi = res.t_s[k_end]
         rejected += [{**r, "index": r["index"] + offset} for r in res.rejected_gnss if t_lo < r["t_s"] <= t_hi]
-        results.append(res)
+        results.append(_summary(res))
         t_lo, join, i0 = float(t_hi), res.hand_over, i0 + int(res.key_idx[k_end])
+        del res, sub
         if not last:
             _check_seam(join)
+        if on_dense is None:
+            dense_parts.append(piece)
+        else:
+            on_dense(piece, _combined(results, parts, rejected), last)
+    if on_dense is not None:
+        return _combined(results, parts, rejected), None
     return _combined(results, parts, rejected), DenseTrajectory(
         *(np.concatenate([getattr(d, n) for d in dense_parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+
+
+def _summary(res: SmootherResult) -> SmootherResult:
+    """``res`` without its arrays (what :func:`_combined` takes of each chunk but the first's
+    alignment): a chunk's arrays beyond its core are not kept."""
+    empty = np.empty(0)
+    return replace(res, t_s=empty, key_idx=empty, R_nb=empty, pos_n=empty, vel_n=empty, gyro_bias_radps=empty,
+                   accel_bias_mps2=empty, odometer_scale=None, sigma_t_s=empty, sigma_pos_n_m=empty,
+                   sigma_att_rad=empty, hand_over=None)
 
 
 def _check_seam(join: HandOver) -> None:

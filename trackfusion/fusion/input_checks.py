@@ -133,7 +133,9 @@ def check_static_gyro_units(imu: ImuData, spec: ImuSpec, rest_intervals_s: list[
     ok = i1 - i0 >= 2
     if not ok.any():
         return
-    cum = np.vstack([np.zeros(3), np.cumsum(imu.gyro_radps - imu.gyro_radps[0], axis=0)])
+    cum = np.zeros((imu.t_s.size + 1, 3))  # one buffer, filled in place (long runs: memory)
+    np.subtract(imu.gyro_radps, imu.gyro_radps[0], out=cum[1:])
+    np.cumsum(cum[1:], axis=0, out=cum[1:])
     mean = (cum[i1[ok]] - cum[i0[ok]]) / (i1[ok] - i0[ok])[:, None] + imu.gyro_radps[0]
     rate = np.linalg.norm(mean, axis=1)
     k = int(np.argmin(rate))

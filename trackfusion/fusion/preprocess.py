@@ -64,12 +64,25 @@ def _moving_std(x: np.ndarray, n: int) -> np.ndarray:
     cumulative sums. ``x`` is centred on its median first, so the sums stay small and the
     difference of cumulative sums keeps its precision over millions of samples."""
     xc = x - np.median(x)
-    c1 = np.concatenate(([0.0], np.cumsum(xc)))
-    c2 = np.concatenate(([0.0], np.cumsum(xc * xc)))
-    s1 = c1[n:] - c1[:-n]
-    s2 = c2[n:] - c2[:-n]
-    var = (s2 - s1 * s1 / n) / (n - 1)
-    return np.sqrt(np.maximum(var, 0.0))
+    c = np.zeros(x.size + 1)  # one cumulative-sum buffer, filled in place (long runs: memory)
+    np.cumsum(xc, out=c[1:])
+    s1 = c[n:] - c[:-n]
+    np.multiply(xc, xc, out=xc)
+    np.cumsum(xc, out=c[1:])
+    del xc
+    var = c[n:] - c[:-n]
+    del c
+    np.multiply(s1, s1, out=s1)
+    s1 /= n
+    var -= s1
+    var /= n - 1
+    return np.sqrt(np.maximum(var, 0.0, out=var), out=var)
+
+
+def _norms(x: np.ndarray) -> np.ndarray:
+    """Row norms (N,) of ``x`` (N, 3), in one buffer."""
+    sq = np.einsum("ij,ij->i", x, x)
+    return np.sqrt(sq, out=sq)
 
 
 def _odometer_quiet(t_a: np.ndarray, t_b: np.ndarray, odometer: OdometerData,
@@ -80,8 +93,12 @@ def _odometer_quiet(t_a: np.ndarray, t_b: np.ndarray, odometer: OdometerData,
     t_odo = _times_s(odometer.t_s, "odometer", 2)
     d_odo = _samples(odometer.distance_m, t_odo.size, "odometer", "distance_m")
     step_s = float(np.median(np.diff(t_odo)))
-    speed_mps = np.abs(np.interp(t_b, t_odo, d_odo) - np.interp(t_a, t_odo, d_odo)) / (t_b - t_a)
-    return (speed_mps < max_speed_mps) & (t_a >= t_odo[0] - step_s) & (t_b <= t_odo[-1] + step_s)
+    quiet = np.empty(t_a.size, dtype=bool)
+    for k in range(0, t_a.size, _PREDICTION_BLOCK):  # blocks bound the temporaries (long runs)
+        a, b = t_a[k:k + _PREDICTION_BLOCK], t_b[k:k + _PREDICTION_BLOCK]
+        speed_mps = np.abs(np.interp(b, t_odo, d_odo) - np.interp(a, t_odo, d_odo)) / (b - a)
+        quiet[k:k + _PREDICTION_BLOCK] = (speed_mps < max_speed_mps) & (a >= t_odo[0] - step_s) & (b <= t_odo[-1] + step_s)
+    return quiet
 
 
 def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,12 +107,36 @@ def _true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
 
 
-def _moving_mean(x: np.ndarray, n: int) -> np.ndarray:
-    """Mean (N - n + 1, 3) of ``x`` (N, 3) over the windows ``x[k:k+n]``, by cumulative sums of
-    ``x`` centred on its median (precision over millions of samples)."""
-    med = np.median(x, axis=0)
-    c = np.concatenate((np.zeros((1, x.shape[1])), np.cumsum(x - med, axis=0)))
-    return (c[n:] - c[:-n]) / n + med
+class _CentredCumsum:
+    """Rows of the cumulative sums ``c`` (N + 1, k) of ``x - med`` (``x`` (N, k), ``med`` its
+    column medians), made on demand for increasing row ranges: the mean over the window
+    ``x[j:j+n]`` is ``(c[j+n] - c[j]) / n + med``. The sums are sequential from the previous
+    range's rows (the values of one cumulative sum over the whole run, without its buffer:
+    long runs' memory); centring keeps the precision over millions of samples."""
+
+    def __init__(self, x: np.ndarray):
+        self.x = x
+        self.med = np.array([np.median(x[:, i]) for i in range(x.shape[1])])  # a column's copy at a time
+        self.lo, self.rows_ = 0, np.zeros((1, x.shape[1]))  # c[lo : lo + len(rows_)]
+
+    def _from(self, start: np.ndarray, a: int, b: int) -> np.ndarray:
+        """c[a : b + 1] from c[a] = ``start``."""
+        out = np.empty((b - a + 1, self.x.shape[1]))
+        out[0] = start
+        np.subtract(self.x[a:b], self.med, out=out[1:])
+        return np.cumsum(out, axis=0, out=out)
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        """c[a : b] (a at least the previous call's ``a``)."""
+        if a >= self.lo + len(self.rows_):  # walk on to row a in blocks
+            at, start = self.lo + len(self.rows_) - 1, self.rows_[-1]
+            while at < a:
+                step = min(a, at + _PREDICTION_BLOCK)
+                start, at = self._from(start, at, step)[-1], step
+            self.lo, self.rows_ = a, start[None]
+        self.rows_ = self._from(self.rows_[a - self.lo], a, b - 1)
+        self.lo = a
+        return self.rows_
 
 
 def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
@@ -106,11 +147,12 @@ def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) ->
     accelerates, which moves the mean specific force by the acceleration long before the
     vibration of rolling shows in the standard deviation of the norm (a raised-cosine start of
     0.4 m/s^2 reaches 5 mm/s^2 within 0.6 s, at 1 mm/s). The median is the rest value as long as
-    less than half a run is motion."""
-    mean = _moving_mean(x, n)
+    less than half a run is motion. (Window means only inside the runs.)"""
+    c = _CentredCumsum(x)
     steady = np.ones(quiet.size, dtype=bool)
     for a, b in zip(*_true_runs(quiet)):
-        m = mean[a:b + 1]
+        rows = c.rows(a, b + n + 1)  # c[a .. b + n]
+        m = (rows[n:] - rows[:-n]) / n + c.med
         steady[a:b + 1] = np.linalg.norm(m - np.median(m, axis=0), axis=1) < threshold
     return steady
 
@@ -185,8 +227,7 @@ def detect_static_intervals(imu: ImuData, odometer: OdometerData | None = None, 
     gyro = _samples(imu.gyro_radps, t.size, "imu", "gyro_radps", 3)
     accel = _samples(imu.accel_mps2, t.size, "imu", "accel_mps2", 3)
 
-    quiet = ((_moving_std(np.sqrt(np.einsum("ij,ij->i", gyro, gyro)), n) < gyro_std_radps)
-             & (_moving_std(np.sqrt(np.einsum("ij,ij->i", accel, accel)), n) < accel_std_mps2))
+    quiet = ((_moving_std(_norms(gyro), n) < gyro_std_radps) & (_moving_std(_norms(accel), n) < accel_std_mps2))
     t_a, t_b = t[: t.size - n + 1], t[n - 1:]
     quiet &= (t_b - t_a) <= _GAP_FACTOR * (n - 1) * dt_s
     if odometer is not None:
@@ -258,9 +299,15 @@ def _raw_predictions_m(t_s: np.ndarray, d_m: np.ndarray, window: int) -> np.ndar
     """One-step cubic predictions (N,) [m] of every sample from the ``window`` raw samples
     before it; NaN for the first ``window`` samples."""
     pred = np.full(d_m.shape, np.nan)
-    pred[window:] = _cubic_extrapolate_m(sliding_window_view(t_s[:-1], window),
-                                         sliding_window_view(d_m[:-1], window), t_s[window:])
+    t_hist, d_hist = sliding_window_view(t_s[:-1], window), sliding_window_view(d_m[:-1], window)
+    for a in range(0, t_hist.shape[0], _PREDICTION_BLOCK):  # blocks bound the (K, window) temporaries
+        s = slice(a, a + _PREDICTION_BLOCK)
+        pred[window + a:window + a + _PREDICTION_BLOCK] = _cubic_extrapolate_m(t_hist[s], d_hist[s], t_s[window:][s])
     return pred
+
+
+#: samples per block of :func:`_raw_predictions_m` (each row's fit is independent of the others)
+_PREDICTION_BLOCK = 65536
 
 
 def _predict_one_m(t_s: np.ndarray, d_m: np.ndarray, i: int, window: int) -> float:

@@ -10,7 +10,6 @@ plus any extra keys the writer passes.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import os
 import tempfile
@@ -68,18 +67,53 @@ def write_csv_table(path: str | os.PathLike, columns: Mapping[str, np.ndarray], 
     fmt: printf format of the values (the default keeps 10 significant digits;
     pass ``"%.17g"`` for a bit-exact round trip).
     """
-    names = list(columns)
-    missing = [c for c in names if c not in units]
-    if missing:
-        raise ValueError(f"no unit for columns {missing}")
-    data = np.column_stack([np.asarray(columns[c], dtype=float) for c in names])
-    buf = io.StringIO()
-    np.savetxt(buf, data, delimiter=",", header=",".join(names), comments="", fmt=fmt)
-    sidecar = {"frame": frame, "origin": dict(origin), "columns": {c: units[c] for c in names}}
-    if extra:
-        sidecar.update(extra)
-    write_text_atomic(path, buf.getvalue())
-    write_json_atomic(sidecar_path(path), sidecar)
+    with CsvTableWriter(path, list(columns), units, frame, origin, extra, fmt) as writer:
+        writer.write(columns)
+
+
+class CsvTableWriter:
+    """A CSV table and its sidecar written block by block (long runs: the rows never all in
+    memory): the same bytes as :func:`write_csv_table` of the blocks' concatenation, and as
+    atomic — the rows go to a temporary name beside ``path``, renamed (and the sidecar
+    written) by :meth:`close`; :meth:`abort` (or an exception inside ``with``) deletes it.
+    Arguments as :func:`write_csv_table`, with the column ``names`` in their order."""
+
+    def __init__(self, path: str | os.PathLike, names: list[str], units: Mapping[str, str], frame: str,
+                 origin: Mapping[str, float], extra: Mapping | None = None, fmt: str = "%.10g"):
+        missing = [c for c in names if c not in units]
+        if missing:
+            raise ValueError(f"no unit for columns {missing}")
+        self.path, self.names, self.fmt, self.rows = Path(path), list(names), fmt, 0
+        self.sidecar = {"frame": frame, "origin": dict(origin), "columns": {c: units[c] for c in names}, **(extra or {})}
+        self._atomic = atomic_path(self.path)
+        self._fh = self._atomic.__enter__().open("w", encoding="utf-8")
+        self._fh.write(",".join(self.names) + "\n")
+
+    def write(self, columns: Mapping[str, np.ndarray]) -> None:
+        """Append rows: name -> 1-D array for every column, all of one length."""
+        data = np.column_stack([np.asarray(columns[c], dtype=float) for c in self.names])
+        np.savetxt(self._fh, data, delimiter=",", fmt=self.fmt)
+        self.rows += data.shape[0]
+
+    def close(self) -> None:
+        self._fh.close()
+        self._atomic.__exit__(None, None, None)
+        write_json_atomic(sidecar_path(self.path), self.sidecar)
+
+    def abort(self) -> None:
+        self._fh.close()
+        with contextlib.suppress(_Aborted):
+            self._atomic.__exit__(_Aborted, _Aborted(), None)  # atomic_path deletes the temporary file
+
+    def __enter__(self) -> "CsvTableWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.abort() if exc_type is not None else self.close()
+
+
+class _Aborted(Exception):
+    """Thrown into :func:`atomic_path` to make it delete an unfinished file."""
 
 
 def read_csv_table(path: str | os.PathLike, required: list[str] | tuple[str, ...] = ()) -> dict[str, np.ndarray]:
@@ -126,3 +160,27 @@ def read_json(path: str | os.PathLike, what: str = "file"):
 def read_sidecar(csv_path: str | os.PathLike) -> dict:
     """Read the JSON sidecar of a CSV table; raises :class:`SensorDataError` naming the file."""
     return read_json(sidecar_path(csv_path), "sidecar")
+
+
+class CsvTableOnDisk(Mapping):
+    """The columns of a CSV table written by :func:`write_csv_table`, read (whole, once) on the
+    first access: a long run's trajectory stays on disk unless asked for. Values are as written
+    (the writer's number format)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._table: dict[str, np.ndarray] | None = None
+
+    def _columns(self) -> dict[str, np.ndarray]:
+        if self._table is None:
+            self._table = read_csv_table(self.path)
+        return self._table
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._columns()[name]
+
+    def __iter__(self):
+        return iter(self._columns())
+
+    def __len__(self) -> int:
+        return len(self._columns())
