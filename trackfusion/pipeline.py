@@ -39,6 +39,7 @@ from .fusion.trajectory import densify
 from .registration.stations import StationSetupConfig
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
+from .sensors.spill import release_free_memory
 from .sensors.types import InclinometerData, OdometerData, SensorLog
 from .track.geometry import GeometryConfig
 
@@ -540,28 +541,6 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
     say("writing the trajectory at the output rate as each chunk is done")
     res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.overlap_s, every, say, on_dense=on_dense)
     return res, stream
-
-
-def release_free_memory() -> None:
-    """Collect garbage and hand the C heap's free pages back to the system (glibc
-    ``malloc_trim``; elsewhere only the collection). Freed small objects (a log's decoded
-    messages, a chunk's factor graph) otherwise keep their pages resident, and each chunk of a
-    long run would start from the previous one's high-water mark (measured: 15 MB a chunk)."""
-    import gc
-    gc.collect()
-    global _malloc_trim
-    if _malloc_trim is None:
-        import ctypes
-        import ctypes.util
-        try:
-            _malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-        except (OSError, AttributeError):
-            _malloc_trim = False
-    if _malloc_trim:
-        _malloc_trim(0)
-
-
-_malloc_trim: Any = None
 
 
 @contextlib.contextmanager

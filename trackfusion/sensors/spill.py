@@ -7,14 +7,19 @@ chunk touches from the file, and :meth:`SpilledImu.release` hands the resident p
 kernel when the chunk is done (they are clean, the file holds them). The process then holds
 about one chunk of IMU data, not the run's (56 bytes a sample: 144 MB for 20 km at 500 Hz).
 The values are bit for bit the same. :class:`SpillArrays` does the same for arrays a run fills
-as it goes (the output rows the geometry needs at the end).
+as it goes (the output rows the geometry needs at the end). :func:`release_free_memory` and
+:func:`trim_heap` hand freed heap pages back to the system between stages.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import gc
 import mmap
 import os
 import tempfile
+from typing import Any
 
 import numpy as np
 
@@ -71,3 +76,28 @@ class SpillArrays:
 def _dont_need(m: mmap.mmap) -> None:
     if hasattr(m, "madvise") and hasattr(mmap, "MADV_DONTNEED"):
         m.madvise(mmap.MADV_DONTNEED)
+
+
+def trim_heap() -> None:
+    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``; elsewhere
+    nothing). Arrays of a few MB freed in the middle of the heap (a log's decoded batches once
+    joined, a chunk's factor graph) otherwise keep their pages resident, under the next stage's."""
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            _malloc_trim = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim: Any = None
+
+
+def release_free_memory() -> None:
+    """Collect garbage, then :func:`trim_heap`. Freed small objects (a log's decoded messages, a
+    chunk's factor graph) otherwise keep their pages resident, and each chunk of a long run would
+    start from the previous one's high-water mark (measured: 15 MB a chunk)."""
+    gc.collect()
+    trim_heap()
