@@ -63,6 +63,22 @@ def test_dask_local_cluster_runs_two_and_reports_the_broken_third(surveys, tmp_p
     assert "[3/3]" in out.err  # progress as surveys finish
 
 
+@pytest.mark.slow
+def test_dask_address_reaches_a_running_scheduler(surveys, tmp_path, capsys):
+    """--address: the same command on a scheduler started elsewhere (here a LocalCluster this
+    test starts: the batch only gets its tcp:// address)."""
+    from dask.distributed import LocalCluster
+    _clean(surveys)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        code = main(["batch", surveys[0], surveys[2], "--engine", "dask", "--address", cluster.scheduler_address,
+                     "--json", str(tmp_path / "a.json")])
+    assert code == EXIT_SOME_FAILED
+    summary = json.loads((tmp_path / "a.json").read_text())
+    assert [o["ok"] for o in summary["outcomes"]] == [True, False] and summary["engine"] == "dask"
+    assert os.path.isfile(summary["outcomes"][0]["out_dir"] + "/trajectory.csv")
+    assert f"dask scheduler {cluster.scheduler_address}" in capsys.readouterr().err
+
+
 def test_local_pool_is_the_default_and_keeps_going(surveys, tmp_path):
     result = run_batch([surveys[2], surveys[0]], workers=2, out_root=str(tmp_path))
     assert result.engine == "local" and [o.ok for o in result.outcomes] == [False, True]
