@@ -36,7 +36,9 @@ from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings,
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .fusion.trajectory import densify
+from .forked import ForkedTasks
 from .registration.stations import StationSetupConfig
+from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
@@ -444,7 +446,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
                           f"{np.ceil(duration_s):.0f} (or null)")
-    with _staging(out) as stage:
+    with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
@@ -476,7 +478,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
                 table = evaluation_table = trajectory_table(dense, res, chainage, every)
                 fused_table = None
-                writer.write(table)
+                writer.write(table, background)  # formatted in a forked child (trackfusion/forked.py)
         timings.update(res.timings_s)
         metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
                                    "imu_samples": int(problem.imu.t_s.size),
@@ -494,6 +496,9 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
             metrics["geometry"] = geometry.metrics
             timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
         # --- end track geometry ---
+        # --- outputs of the tables alone, in a forked child while the evaluation goes on (report/outputs.py) ---
+        early = start_table_outputs(background, stage, table, problem.origin, cfg, geometry, log,
+                                    FUSED_POSE_RATE_HZ) if table is not None else None
         del dense, chainage, geometry_imu
         if kept is not None:
             kept.release()  # the geometry's rows, read back for it
@@ -507,7 +512,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         metrics["timings_s"] = timings
         metrics["run_time_s"] = timings["total_s"]
         say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log, fused_table=fused_table)
+        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log, fused_table=fused_table,
+                              early=early, background=background)
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     from .sensors.fileio import CsvTableOnDisk
     return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
@@ -569,30 +575,34 @@ def _trajectory_writer(path: Path, origin: geodesy.Origin, cfg: PipelineConfig):
 
 def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, metrics: dict,
                   origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None,
-                  fused_table: dict[str, np.ndarray] | None = None) -> list[str]:
+                  fused_table: dict[str, np.ndarray] | None = None, early=None,
+                  background: ForkedTasks | None = None) -> list[str]:
     """Write the outputs but trajectory.csv into the staging folder ``stage`` (:func:`_staging`;
     ``out`` is the folder they go to); returns the names of all staged files. ``table``: the
     whole trajectory.csv table, or None when it is only on disk (a run in chunks);
     ``fused_table``: the trajectory rows fused.mcap shows when not ``table`` (a long run's rows
-    at :data:`FUSED_POSE_RATE_HZ`); ``raw``: the input log as read, whose topics fused.mcap carries."""
-    from .sensors.fileio import write_csv_table, write_json_atomic
-    from .sensors.fused import write_fused_mcap
+    at :data:`FUSED_POSE_RATE_HZ`); ``raw``: the input log as read, whose topics fused.mcap carries.
+    ``early``: the forked task already writing geometry.csv and fused.mcap and drawing the table
+    figures (:func:`~trackfusion.report.outputs.start_table_outputs`); ``background``: the run's
+    forked tasks, all waited for (and their failures raised) before the files are listed."""
+    from .report.outputs import write_table_outputs
+    from .sensors.fileio import write_json_atomic
     tic_write = time.perf_counter()  # timings_s.write_s
     write_json_atomic(stage / "metrics.json", metrics)
-    if geometry is not None:  # issue 6: geometry.csv + geometry.json
-        write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
-                        fmt="%.12g", extra=geometry.sidecar())
-    # --- issue 7: Foxglove log and report, from the staged files (keep them the last outputs) ---
-    if cfg.outputs.fused_mcap:
-        write_fused_mcap(stage / "fused.mcap", table if fused_table is None else fused_table, origin,
-                         max_rate_hz=FUSED_POSE_RATE_HZ, raw=raw,
-                         geometry=geometry.table if geometry is not None else None)
+    # --- issues 6 and 7: geometry.csv, Foxglove log and report, from the staged files (report last) ---
+    if early is None:
+        images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
+                                     raw, FUSED_POSE_RATE_HZ)
+    else:
+        images = early.result()
     if cfg.outputs.report:
         from .report.html import write_report
         tables = {**({"trajectory.csv": table} if table is not None else {}),  # no re-parsing of these CSVs
                   **({"geometry.csv": geometry.table} if geometry is not None else {})}
-        write_report(stage, stage / "report.html", shown_dir=out, tables=tables)
-    # --- end issue 7 ---
+        write_report(stage, stage / "report.html", shown_dir=out, tables=tables, images=images)
+    if background is not None:
+        background.wait()  # trajectory.csv's rows (renamed into the stage when written)
+    # --- end issues 6 and 7 ---
     # metrics.json once more, last, with the time the writing took
     timings = metrics.setdefault("timings_s", {})
     timings["write_s"] = time.perf_counter() - tic_write

@@ -21,6 +21,12 @@ MARGINS_IN = {"left": 1.0, "right": 0.2, "bottom": 0.5, "top": 0.32}
 GAP_IN, SHARED_GAP_IN = 0.9, 0.45
 
 
+def preload() -> None:
+    """Import matplotlib's Agg canvas now (about a second), e.g. once before forking children that draw."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
+
 def _figure(width_in: float, height_in: float):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -16,7 +16,7 @@ import base64
 import html
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +44,8 @@ class RunFiles:
     geometry: dict[str, np.ndarray] | None
     geometry_meta: dict[str, Any] | None
     shown_dir: Path | None = None
+    #: ``<img>`` tags already rendered (alt text -> tag, :func:`table_images`), used instead of drawing again
+    images: dict[str, str] = field(default_factory=dict)
 
 
 TRAJECTORY_REQUIRED = ("t_s", "e_m", "n_m", "u_m", "chainage_m", "sigma_e_m", "sigma_n_m", "sigma_u_m")
@@ -112,6 +114,13 @@ def _kv(pairs: list[tuple[str, Any]]) -> str:
 def _img(fig, alt: str) -> str:
     data = base64.b64encode(figures.png_bytes(fig)).decode("ascii")
     return f"<img alt='{_e(alt)}' src='data:image/png;base64,{data}'>"
+
+
+def _run_img(run: RunFiles, alt: str, make_figure) -> str:
+    """The ``<img>`` of ``make_figure()``, or the one drawn before (kept in ``run.images``)."""
+    if alt not in run.images:
+        run.images[alt] = _img(make_figure(), alt)
+    return run.images[alt]
 
 
 def _section(sid: str, title: str, body: str) -> str:
@@ -224,19 +233,19 @@ def geometry_section(run: RunFiles) -> str:
     parts = []
     irr = {c: g[c] for c in IRREGULARITY_COLUMNS if c in g}
     if irr:
-        parts.append(_img(figures.series_with_bands(s, irr, limits, "irregularities (mm)", exceedances),
-                          "irregularities"))
+        parts.append(_run_img(run, "irregularities", lambda: figures.series_with_bands(
+            s, irr, limits, "irregularities (mm)", exceedances)))
     versines = {c: g[c] for c in g if _VERSINE.match(c)}
     if versines:
-        parts.append(_img(figures.series_with_bands(s, versines, limits, "chord versines (mm)", exceedances),
-                          "versines"))
+        parts.append(_run_img(run, "versines", lambda: figures.series_with_bands(
+            s, versines, limits, "chord versines (mm)", exceedances)))
     level = {c: g[c] for c in g if c == "cross_level_mm" or _TWIST.match(c)}
     if "gauge_m" in g:
         nominal = float((run.geometry_meta or {}).get("nominal_gauge_m", NOMINAL_GAUGE_M))
         level[f"gauge_minus_{nominal * 1e3:g}_mm"] = (g["gauge_m"] - nominal) * 1e3
     if level:
-        parts.append(_img(figures.series_with_bands(s, level, limits, "cross-level, twist and gauge (mm)",
-                                                    exceedances), "cross-level"))
+        parts.append(_run_img(run, "cross-level", lambda: figures.series_with_bands(
+            s, level, limits, "cross-level, twist and gauge (mm)", exceedances)))
     facts = [("chainage", f"{s.min():.2f} m to {s.max():.2f} m"), ("step", gm.get("step_m")),
              ("length", gm.get("length_m")),
              ("tolerances (mm)", {k: v for k, v in limits.items()} or "none given")]
@@ -321,15 +330,18 @@ img{max-width:100%;height:auto;display:block;margin:8px 0}.note{color:#57606a;fo
 """
 
 
+def trajectory_sections(run: RunFiles) -> list[str]:
+    """The trajectory plan and profile and the position sigmas."""
+    return [_section("trajectory", "Trajectory plan and profile",
+                     _run_img(run, "plan and profile", lambda: figures.plan_and_profile(run.trajectory))),
+            _section("sigmas", "Position sigmas along chainage",
+                     _run_img(run, "position sigmas", lambda: figures.sigmas_along_chainage(run.trajectory)))]
+
+
 def render_report(run: RunFiles) -> str:
     """The whole HTML document of a run (a string)."""
     m = run.metrics
-    sections = [summary_section(run),
-                _section("trajectory", "Trajectory plan and profile",
-                         _img(figures.plan_and_profile(run.trajectory), "plan and profile")),
-                _section("sigmas", "Position sigmas along chainage",
-                         _img(figures.sigmas_along_chainage(run.trajectory), "position sigmas")),
-                accuracy_section(m), geometry_section(run), time_sync_section(m), registration_section(m),
+    sections = [summary_section(run), *trajectory_sections(run), accuracy_section(m), geometry_section(run), time_sync_section(m), registration_section(m),
                 rejected_section(m), faults_section(m)]
     sections = [s for s in sections if s]
     nav = "".join(f"<a href='#{sid}'>{_e(title)}</a>" for sid, title in
@@ -341,15 +353,30 @@ def render_report(run: RunFiles) -> str:
             f"<nav>{nav}</nav>{''.join(sections)}</body></html>\n")
 
 
+def table_images(trajectory: dict[str, np.ndarray], geometry: dict[str, np.ndarray] | None = None,
+                 geometry_metrics: dict | None = None, geometry_meta: dict | None = None) -> dict[str, str]:
+    """The ``<img>`` tags (alt text -> tag) of the figures drawn from the trajectory and geometry
+    tables alone (plan and profile, sigmas, the geometry section's; not those of the metrics): the
+    pipeline draws them in a forked child while it evaluates, and :func:`write_report` takes
+    them (``images``). ``geometry_metrics``: ``metrics["geometry"]`` as in metrics.json;
+    ``geometry_meta``: the geometry.csv sidecar."""
+    run = RunFiles(Path("."), {"geometry": geometry_metrics or {}}, trajectory, {}, geometry, geometry_meta)
+    trajectory_sections(run)  # these draw their figures into run.images
+    geometry_section(run)
+    return run.images
+
+
 def write_report(run_dir: str | Path, path: str | Path | None = None, shown_dir: str | Path | None = None,
-                 tables: dict[str, dict[str, np.ndarray]] | None = None) -> Path:
+                 tables: dict[str, dict[str, np.ndarray]] | None = None,
+                 images: dict[str, str] | None = None) -> Path:
     """Write ``report.html`` of the run in ``run_dir`` (default: inside it); returns its path.
     ``shown_dir``: the output folder named in the report (default ``run_dir``; the pipeline
     writes from a staging folder). ``tables``: the folder's CSV tables already in memory
-    (:func:`load_run`)."""
+    (:func:`load_run`); ``images``: figures already drawn from them (:func:`table_images`)."""
     run = load_run(run_dir, tables)
     if shown_dir is not None:
         run.shown_dir = Path(shown_dir)
+    run.images = dict(images or {})
     out = Path(path) if path is not None else Path(run_dir) / "report.html"
     write_text_atomic(out, render_report(run))
     return out

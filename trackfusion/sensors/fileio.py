@@ -76,7 +76,12 @@ class CsvTableWriter:
     memory): the same bytes as :func:`write_csv_table` of the blocks' concatenation, and as
     atomic — the rows go to a temporary name beside ``path``, renamed (and the sidecar
     written) by :meth:`close`; :meth:`abort` (or an exception inside ``with``) deletes it.
-    Arguments as :func:`write_csv_table`, with the column ``names`` in their order."""
+    Arguments as :func:`write_csv_table`, with the column ``names`` in their order.
+
+    ``write(columns, background=tasks)`` formats the block in a forked child
+    (:class:`~trackfusion.forked.ForkedTasks`) while this process goes on; :meth:`close` then
+    writes the sidecar, and the table is renamed into place when ``tasks`` has waited for the
+    child (a failed child: the temporary file and the sidecar are deleted)."""
 
     def __init__(self, path: str | os.PathLike, names: list[str], units: Mapping[str, str], frame: str,
                  origin: Mapping[str, float], extra: Mapping | None = None, fmt: str = "%.10g"):
@@ -88,20 +93,45 @@ class CsvTableWriter:
         self._atomic = atomic_path(self.path)
         self._fh = self._atomic.__enter__().open("w", encoding="utf-8")
         self._fh.write(",".join(self.names) + "\n")
+        self._pending = None  # the ForkedTask writing the last block, if any
 
-    def write(self, columns: Mapping[str, np.ndarray]) -> None:
-        """Append rows: name -> 1-D array for every column, all of one length."""
+    def write(self, columns: Mapping[str, np.ndarray], background=None) -> None:
+        """Append rows: name -> 1-D array for every column, all of one length; with ``background``
+        (a :class:`~trackfusion.forked.ForkedTasks`), formatted in a forked child (class docstring)."""
         data = np.column_stack([np.asarray(columns[c], dtype=float) for c in self.names])
-        np.savetxt(self._fh, data, delimiter=",", fmt=self.fmt)
+        if self._pending is not None:  # blocks stay in order
+            self._pending.result()
+            self._pending = None
+        if background is None:
+            self._write_rows(data)
+        else:
+            self._fh.flush()  # the child shares the file (and its offset), not this buffer
+            self._pending = background.submit(f"{self.path}: writing the rows", self._write_rows, data)
         self.rows += data.shape[0]
+
+    def _write_rows(self, data: np.ndarray) -> None:
+        np.savetxt(self._fh, data, delimiter=",", fmt=self.fmt)
+        self._fh.flush()
 
     def close(self) -> None:
         self._fh.close()
-        self._atomic.__exit__(None, None, None)
-        write_json_atomic(sidecar_path(self.path), self.sidecar)
+        if self._pending is None:
+            self._atomic.__exit__(None, None, None)
+            write_json_atomic(sidecar_path(self.path), self.sidecar)
+            return
+        write_json_atomic(sidecar_path(self.path), self.sidecar)  # at once: readers of the sidecar need no rows
+        # the rows renamed into place once the child has written them, deleted if it fails
+        self._pending.then(lambda _rows: self._atomic.__exit__(None, None, None), self._discard_all)
+
+    def _discard_all(self) -> None:
+        self._discard()
+        sidecar_path(self.path).unlink(missing_ok=True)
 
     def abort(self) -> None:
         self._fh.close()
+        self._discard()  # a child still writing writes to the deleted file
+
+    def _discard(self) -> None:
         with contextlib.suppress(_Aborted):
             self._atomic.__exit__(_Aborted, _Aborted(), None)  # atomic_path deletes the temporary file
 

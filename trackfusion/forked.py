@@ -1,0 +1,189 @@
+"""Work done in forked child processes while this process goes on (a run's outputs on the second core).
+
+:class:`ForkedTasks` runs functions in children forked from this process (they see its memory as it
+was at the fork, copy-on-write, and send their return value back through a pipe); :meth:`wait`
+takes the results in the order submitted and raises the first failure in this process: the
+child's exception itself (a :class:`~trackfusion.errors.TrackfusionError` stays one, so the
+command line still exits with code 2 and its one line), or :class:`ForkedTaskError` when a child
+died without an answer (killed, out of memory). Leaving the ``with`` block on an exception kills
+and reaps the children still running, so no child outlives a failed run.
+
+Without ``fork``, with fewer than 2 CPUs, inside a forked child, or with :data:`ENABLED` False,
+every function runs at once in this process (the same results and errors, in turn).
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import pickle
+import signal
+import traceback
+from typing import Any, Callable
+
+from .errors import TrackfusionError
+
+#: False: run every task in this process, in turn (e.g. to compare timings)
+ENABLED = True
+_IN_CHILD = False
+
+
+class ForkedTaskError(TrackfusionError):
+    """A forked child died without handing back its result."""
+
+
+def can_fork() -> bool:
+    """True when tasks would run in forked children (module docstring)."""
+    return ENABLED and not _IN_CHILD and hasattr(os, "fork") and len(os.sched_getaffinity(0)) >= 2
+
+
+class ForkedTask:
+    """One submitted function: its result once :meth:`result` has waited for it."""
+
+    def __init__(self, what: str):
+        self.what = what
+        self.pid: int | None = None
+        self._fd: int | None = None
+        self._done = False
+        self._value: Any = None
+        self._error: BaseException | None = None
+        self._then: list[Callable[[Any], None]] = []
+
+    def then(self, callback: Callable[[Any], None], otherwise: Callable[[], None] | None = None) -> None:
+        """Call ``callback(result)`` in this process once the task has succeeded, or ``otherwise()``
+        once it has failed or been stopped (at once when it is already done)."""
+        if self._done:
+            callback(self._value) if self._error is None else (otherwise and otherwise())
+        else:
+            self._then.append((callback, otherwise))
+
+    def result(self) -> Any:
+        """The function's return value (waits for the child); raises its exception."""
+        if not self._done:
+            self._collect()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+    def _settle(self, value: Any = None, error: BaseException | None = None) -> None:
+        self._done, self._value, self._error = True, value, error
+        callbacks, self._then = self._then, []
+        for callback, otherwise in callbacks:
+            if error is None:
+                callback(value)
+            elif otherwise is not None:
+                otherwise()
+
+    def _collect(self) -> None:
+        chunks = []
+        while True:  # the whole answer before waitpid: a child blocked on a full pipe never exits
+            data = os.read(self._fd, 1 << 20)
+            if not data:
+                break
+            chunks.append(data)
+        os.close(self._fd)
+        _, status = os.waitpid(self.pid, 0)
+        self.pid = None
+        if not chunks or os.WIFSIGNALED(status) or os.WEXITSTATUS(status) != 0:
+            how = (f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status)
+                   else f"exit code {os.WEXITSTATUS(status)}")
+            self._settle(error=ForkedTaskError(f"{self.what}: the forked child process died ({how})"))
+            return
+        try:
+            ok, payload = pickle.loads(b"".join(chunks))
+        except Exception as exc:  # noqa: BLE001 (e.g. an exception class that does not unpickle)
+            self._settle(error=ForkedTaskError(f"{self.what}: unreadable answer of the child ({exc})"))
+            return
+        self._settle(value=payload) if ok else self._settle(error=payload)
+
+    def _kill(self) -> None:
+        if self.pid is not None:
+            os.kill(self.pid, signal.SIGKILL)
+            os.close(self._fd)
+            os.waitpid(self.pid, 0)
+            self.pid = None
+            self._settle(error=ForkedTaskError(f"{self.what}: stopped"))
+
+
+class ForkedTasks:
+    """Functions run in forked children (module docstring); use as a context manager."""
+
+    def __init__(self):
+        self.tasks: list[ForkedTask] = []
+
+    def submit(self, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> ForkedTask:
+        """Run ``fn(*args, **kwargs)`` in a forked child (here when :func:`can_fork` is False);
+        ``what`` names the work in error messages (e.g. ``"writing fused.mcap"``)."""
+        task = ForkedTask(what)
+        self.tasks.append(task)
+        if not can_fork():
+            try:
+                task._settle(value=fn(*args, **kwargs))
+            except Exception as exc:  # noqa: BLE001 (raised by result(), as from a child)
+                task._settle(error=exc)
+            return task
+        read_fd, write_fd = os.pipe()
+        gc.collect()
+        gc.freeze()  # the child's collector leaves this process's objects (and their pages) alone
+        pid = os.fork()
+        if pid == 0:  # pragma: no cover (runs in the child; covered through its answers)
+            _child(read_fd, write_fd, fn, args, kwargs)
+        gc.unfreeze()
+        os.close(write_fd)
+        task.pid, task._fd = pid, read_fd
+        return task
+
+    def wait(self) -> None:
+        """Wait for every task; raises the first failure (in the order submitted)."""
+        first = None
+        for task in self.tasks:
+            try:
+                task.result()
+            except BaseException as exc:  # noqa: BLE001 (the others are still waited for)
+                first = first or exc
+        self.tasks = []
+        if first is not None:
+            raise first
+
+    def kill(self) -> None:
+        """Stop and reap every child still running."""
+        for task in self.tasks:
+            task._kill()
+        self.tasks = []
+
+    def __enter__(self) -> "ForkedTasks":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            self.kill()
+        else:
+            self.wait()
+
+
+def _child(read_fd: int, write_fd: int, fn: Callable, args: tuple, kwargs: dict) -> None:
+    """The forked child: run ``fn``, send (ok, value or exception) and leave without any clean-up
+    of the parent's state (no atexit handlers, no buffered output of the parent flushed twice)."""
+    global _IN_CHILD
+    _IN_CHILD = True
+    code = 0
+    try:
+        os.close(read_fd)
+        try:
+            answer = (True, fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001 (handed to the parent)
+            exc.add_note("in a forked child:\n" + traceback.format_exc().rstrip())
+            answer = (False, exc)
+        try:
+            data = pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception:  # noqa: BLE001 (an exception that does not pickle: its type and message)
+            err = answer[1] if not answer[0] else TypeError("unpicklable result")
+            data = pickle.dumps((False, RuntimeError(f"{type(err).__name__}: {err}")))
+        view = memoryview(data)
+        while view:
+            view = view[os.write(write_fd, view):]
+        os.close(write_fd)
+    except BaseException:  # noqa: BLE001
+        code = 1
+    finally:
+        os._exit(code)

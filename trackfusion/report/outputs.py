@@ -1,0 +1,57 @@
+"""The run's outputs drawn from its tables alone — ``geometry.csv``, ``fused.mcap`` and the report's
+table figures — written into the staging folder, in a forked child while the run evaluates.
+
+``trackfusion run`` (``pipeline.write_outputs``) writes metrics.json, then these, then report.html
+and metrics.json again. For a run smoothed in one batch they need nothing of the evaluation, so
+:func:`start_table_outputs` writes them in a forked child (:mod:`trackfusion.forked`) as soon as
+the track geometry is done, while the parent compares with the reference; the files and figures
+are those written in turn, byte for byte (tests/test_forked_outputs.py). They go to temporary
+names in the staging folder and are renamed there when complete; a failed child fails the run,
+and the staging folder goes with everything in it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..forked import ForkedTask, ForkedTasks, can_fork
+
+
+def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None, raw=None,
+                        fused_pose_rate_hz: float = 10.0, draw: bool = False) -> dict[str, str]:
+    """Write ``geometry.csv`` (+ sidecar, when ``geometry``) and ``fused.mcap`` (when
+    ``cfg.outputs.fused_mcap``: the rows of ``table`` at ``fused_pose_rate_hz``, the rails, the raw
+    log ``raw``) into ``stage``; with ``draw`` (and ``cfg.outputs.report``) returns the report's
+    figures of ``table`` and the geometry (:func:`~trackfusion.report.html.table_images`), else {}."""
+    from ..sensors.fileio import read_sidecar, write_csv_table
+    from ..sensors.fused import write_fused_mcap
+    if geometry is not None:  # issue 6: geometry.csv + geometry.json
+        write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
+                        fmt="%.12g", extra=geometry.sidecar())
+    if cfg.outputs.fused_mcap:
+        write_fused_mcap(stage / "fused.mcap", table, origin, max_rate_hz=fused_pose_rate_hz, raw=raw,
+                         geometry=geometry.table if geometry is not None else None)
+    if not (draw and cfg.outputs.report):
+        return {}
+    from .html import table_images
+    if geometry is None:
+        return table_images(table)
+    as_written = json.loads(json.dumps(geometry.metrics, allow_nan=False))  # the report reads metrics.json
+    return table_images(table, geometry.table, as_written, read_sidecar(stage / "geometry.csv"))
+
+
+def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, np.ndarray], origin, cfg,
+                        geometry=None, raw=None, fused_pose_rate_hz: float = 10.0) -> ForkedTask | None:
+    """:func:`write_table_outputs` (with the figures) in a forked child of ``background``; returns
+    its task (result: the figures), or None when children cannot be forked (then the outputs are
+    written in turn by ``pipeline.write_outputs``)."""
+    if not can_fork():
+        return None
+    if cfg.outputs.report:
+        from .figures import preload
+        preload()  # imported once here, not in every child
+    return background.submit("writing geometry.csv, fused.mcap and the report figures", write_table_outputs,
+                             stage, table, origin, cfg, geometry, raw, fused_pose_rate_hz, draw=True)
