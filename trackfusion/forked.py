@@ -172,7 +172,8 @@ def _child(read_fd: int, write_fd: int, fn: Callable, args: tuple, kwargs: dict)
         try:
             answer = (True, fn(*args, **kwargs))
         except BaseException as exc:  # noqa: BLE001 (handed to the parent)
-            exc.add_note("in a forked child:\n" + traceback.format_exc().rstrip())
+            if not isinstance(exc, TrackfusionError):  # an internal error: where it happened
+                exc.add_note("in a forked child:\n" + traceback.format_exc().rstrip())
             answer = (False, exc)
         try:
             data = pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL)
