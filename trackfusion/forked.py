@@ -8,13 +8,15 @@ command line still exits with code 2 and its one line), or :class:`ForkedTaskErr
 died without an answer (killed, out of memory). Leaving the ``with`` block on an exception kills
 and reaps the children still running, so no child outlives a failed run.
 
-Without ``fork``, with fewer than 2 CPUs, inside a forked child, or with :data:`ENABLED` False,
+Without ``fork``, with fewer than 2 CPUs, inside a forked child or a worker process (e.g. of
+``trackfusion batch``, which runs surveys side by side already), or with :data:`ENABLED` False,
 every function runs at once in this process (the same results and errors, in turn).
 """
 
 from __future__ import annotations
 
 import gc
+import multiprocessing
 import os
 import pickle
 import signal
@@ -34,7 +36,8 @@ class ForkedTaskError(TrackfusionError):
 
 def can_fork() -> bool:
     """True when tasks would run in forked children (module docstring)."""
-    return ENABLED and not _IN_CHILD and hasattr(os, "fork") and len(os.sched_getaffinity(0)) >= 2
+    return (ENABLED and not _IN_CHILD and hasattr(os, "fork") and len(os.sched_getaffinity(0)) >= 2
+            and multiprocessing.parent_process() is None)
 
 
 class ForkedTask:
