@@ -126,7 +126,6 @@ class ForkedTasks:
                 task._settle(error=exc)
             return task
         read_fd, write_fd = os.pipe()
-        gc.collect()
         gc.freeze()  # the child's collector leaves this process's objects (and their pages) alone
         pid = os.fork()
         if pid == 0:  # pragma: no cover (runs in the child; covered through its answers)
