@@ -1,6 +1,7 @@
 """Benchmark: fault injection. How much does each data fault degrade the fused trajectory?
 
 Usage: python benchmarks/faults.py [--seed 1] [--part all|gnss|ts] [--faults gnss_outliers prism_gap ...]
+                                  [--work DIR]
 
 1. Simulates a clean ``open-track-gnss`` survey (seed 002's set-up, shortened to one pass of
    1020 m with 60 s / 30 s static ends; cached under ``$TMPDIR/trackfusion-bench``), runs the
@@ -17,6 +18,8 @@ Usage: python benchmarks/faults.py [--seed 1] [--part all|gnss|ts] [--faults gns
    the largest change of the fused trajectory against the clean run outside the fault interval
    and inside it [mm] (a clock jump's "interval" is the rest of the run after it; for it the
    step found and the clock offset after the jump against the truth are reported).
+The clean surveys are cached (read only once simulated); the faulty logs and the runs' outputs
+go to ``--work`` (default: the cache folder).
 Prints tables; writes benchmarks/results/faults.json (GNSS/odometer part) and
 benchmarks/results/faults_total_station.json.
 Targets (issue 8): 5 % of the fixes displaced by 0.3-3 m raise the absolute RMS by < 1.5x and the
@@ -100,12 +103,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--part", choices=("all", "gnss", "ts"), default="all")
     ap.add_argument("--faults", nargs="*", default=None, help="names from INJECTORS and TS_INJECTORS")
+    ap.add_argument("--work", type=Path, default=CACHE, help="folder for the faulty logs and the runs' outputs")
     args = ap.parse_args()
     chosen = args.faults if args.faults is not None else list(INJECTORS) + list(TS_INJECTORS)
     if args.part in ("all", "gnss") and any(f in INJECTORS for f in chosen):
-        gnss_part(args.seed, [f for f in chosen if f in INJECTORS])
+        gnss_part(args.seed, [f for f in chosen if f in INJECTORS], args.work)
     if args.part in ("all", "ts") and any(f in TS_INJECTORS for f in chosen):
-        total_station_part(args.seed, [f for f in chosen if f in TS_INJECTORS])
+        total_station_part(args.seed, [f for f in chosen if f in TS_INJECTORS], args.work)
 
 
 def _faulty_runs(sim: Path, work: Path, injectors: dict, names: list[str], on_result) -> list[dict]:
@@ -143,10 +147,10 @@ def _faulty_runs(sim: Path, work: Path, injectors: dict, names: list[str], on_re
     return rows
 
 
-def gnss_part(seed: int, names: list[str]) -> None:
+def gnss_part(seed: int, names: list[str], work_root: Path = CACHE) -> None:
     from trackfusion.simulation.faults import INJECTORS
     sim = clean_survey(seed)
-    work = CACHE / f"faults-work-{seed}"
+    work = work_root / f"faults-work-{seed}"
     work.mkdir(parents=True, exist_ok=True)
     tic = time.perf_counter()
     clean = accuracy(run_log(sim, sim / "log.mcap", work / "out-clean").metrics)
@@ -178,10 +182,10 @@ def _positions_mm(table: dict) -> np.ndarray:
     return np.column_stack([table["e_m"], table["n_m"], table["u_m"]]) * 1e3
 
 
-def total_station_part(seed: int, names: list[str]) -> None:
+def total_station_part(seed: int, names: list[str], work_root: Path = CACHE) -> None:
     from trackfusion.simulation.faults import TS_INJECTORS
     sim = clean_survey(seed, "bridge-total-station", BRIDGE_SHORT)
-    work = CACHE / f"faults-work-bridge-{seed}"
+    work = work_root / f"faults-work-bridge-{seed}"
     work.mkdir(parents=True, exist_ok=True)
     truth = json.loads((sim / "truth.json").read_text())["total_stations"]
     tic = time.perf_counter()

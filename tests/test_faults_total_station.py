@@ -83,7 +83,10 @@ def test_mislock_episodes_from_rejected_runs():
     station = np.zeros(t.size, int)
     flag = (t > 5.05) & (t < 8.05)
     ev = prism_mislocks(t, station, ["TS01"], flag)
-    assert ev == [{"station": "TS01", "start_s": pytest.approx(5.1), "end_s": pytest.approx(8.0), "readings": 30}]
+    assert ev == [{"station": "TS01", "start_s": pytest.approx(5.1), "end_s": pytest.approx(8.0), "readings": 30,
+                   "detected_by": "gate"}]
+    both = prism_mislocks(t, station, ["TS01"], flag, by_step_check=flag & (t < 7.05))
+    assert both[0]["detected_by"] == "step_check+gate"
     lines = summary_lines({"prism_mislocks": {"count": 1, "events": ev}})
     assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected)"]
 

@@ -118,17 +118,17 @@ def _odometer_fit(splits: np.ndarray, k: int, s_idx: np.ndarray, t: np.ndarray, 
     return J, sigma_J, chi2
 
 
-def _station_only_step(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, i0: int, i1: int, first_after: int
-                       ) -> tuple[float, float]:
+def _station_only_step(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, i0: int, i1: int, first_after: int,
+                       use: np.ndarray) -> tuple[float, float]:
     """The step in time [s] and its sigma from the station's own readings i0..i1-1 (original
-    indices): a cubic in time of the positions along the principal axis plus a step after
-    ``first_after``, divided by the speed at the split."""
-    sl = slice(i0, i1)
+    indices; of those, ``use`` (i1 - i0,) bool): a cubic in time of the positions along the
+    principal axis plus a step after ``first_after``, divided by the speed at the split."""
+    sl = np.arange(i0, i1)[use]
     s, sig = _axis_projection(pos[None, sl], cov[None, sl])
     tau = t[sl] - 0.5 * (t[first_after - 1] + t[first_after])
     span = max(float(np.abs(tau).max()), 1e-3)
     x = tau / span
-    after = (np.arange(i0, i1) >= first_after).astype(float)
+    after = (sl >= first_after).astype(float)
     A = np.stack([np.ones_like(x), x, x**2, x**3, after], axis=-1)[None]
     sol, C, chi2 = _wls(A, s, sig, np.zeros(5))
     speed = sol[0, 1] / span
@@ -168,8 +168,8 @@ def _best_jump(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, odo_t_s: np.ndar
 
 
 def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset_s: float, pos_n: np.ndarray,
-                                cov_n: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray
-                                ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+                                cov_n: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray,
+                                excluded: np.ndarray | None = None) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Find and remove the clock jumps of one station (module docstring).
 
     ``t_station_s`` (N,) [s, station clock]; ``offset_s`` the station's clock offset (the
@@ -177,11 +177,14 @@ def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset
     ``odo_t_s``, ``odo_d_m`` the odometer on the IMU clock. Returns the corrected station times
     (a new array: every stamp after a jump less the step) and one ``{"topic", "index", "t_s",
     "step_s", "sigma_s"}`` per jump (``index`` the first reading after it, ``t_s`` its IMU time
-    with the given offset). Raises :class:`RegistrationError` for a jump it cannot determine.
+    with the given offset). ``excluded`` (N,) bool: readings that are not of the prism (the step
+    check's mis-locks), left out of the search (their stamps are corrected too). Raises
+    :class:`RegistrationError` for a jump it cannot determine.
     """
     t_st = np.asarray(t_station_s, dtype=float).copy()
     pos, cov = np.asarray(pos_n, dtype=float), np.asarray(cov_n, dtype=float)
-    excluded = np.zeros(t_st.size, dtype=bool)
+    not_prism = np.zeros(t_st.size, dtype=bool) if excluded is None else np.asarray(excluded, dtype=bool)
+    excluded = not_prism.copy()
     jumps: list[dict[str, Any]] = []
     topic = f"/total_station/{station_id}"
     for _ in range(2 * MAX_JUMPS):
@@ -191,8 +194,9 @@ def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset
         J, sigma, i = found["J"], found["sigma"], found["first_after"]
         t_imu = float(t_st[i] - offset_s)
         i0, i1 = (int(x) for x in np.searchsorted(t_st, [t_st[i] - STATION_WINDOW_S, t_st[i - 1] + STATION_WINDOW_S]))
-        if abs(found["speed"]) > MIN_SPEED_MPS and min(i - i0, i1 - i) >= 4:  # the station's stamps must show it
-            J_st, s_st = _station_only_step(t_st, pos, cov, i0, i1, i)
+        use = ~not_prism[i0:i1]
+        if abs(found["speed"]) > MIN_SPEED_MPS and min(use[:i - i0].sum(), use[i - i0:].sum()) >= 4:
+            J_st, s_st = _station_only_step(t_st, pos, cov, i0, i1, i, use)  # the station's stamps must show it
             if not abs(J_st - J) <= max(AGREE_SIGMA * np.hypot(sigma, s_st), AGREE_S):
                 excluded[found["window"][0]:found["window"][1]] = True   # not the station's clock
                 continue

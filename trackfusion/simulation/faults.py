@@ -218,6 +218,7 @@ def inject_prism_mislock(log: SensorLog, *, strength: float = 10.0, station: str
     ts, sel, start = _station_window(log, station, start_s, strength)
     hz, zen, dist = ts.horizontal_angle_rad.copy(), ts.zenith_angle_rad.copy(), ts.slope_distance_m.copy()
     idx = np.flatnonzero(sel)
+    turn = offset_m / (dist[idx] * np.sin(zen[idx]))      # from the noise-free reading: no leak of the noise
     if not moving:
         rng = np.random.default_rng(seed)
         spec = TotalStationSpec.model_fields
@@ -226,7 +227,7 @@ def inject_prism_mislock(log: SensorLog, *, strength: float = 10.0, station: str
         hz[idx] = hz[idx[0]] + rng.standard_normal(k) * sig_a
         zen[idx] = zen[idx[0]] + rng.standard_normal(k) * sig_a
         dist[idx] = dist[idx[0]] + rng.standard_normal(k) * spec["distance_sigma_mm"].default * 1e-3
-    hz[idx] = np.mod(hz[idx] + offset_m / (dist[idx] * np.sin(zen[idx])), 2 * np.pi)
+    hz[idx] = np.mod(hz[idx] + (turn[0] if not moving else turn), 2 * np.pi)
     new = replace(ts, horizontal_angle_rad=hz, zenith_angle_rad=zen, slope_distance_m=dist)
     return _with_stream(log, f"/total_station/{station}", new), {
         "fault": "prism_mislock", "station": station, "start_s": start, "end_s": start + strength,
