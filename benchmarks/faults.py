@@ -162,7 +162,7 @@ def gnss_part(seed: int, names: list[str], work_root: Path = CACHE) -> None:
         fig = accuracy(res.metrics)
         row.update(**fig, **ratios(fig, clean))
 
-    rows = _faulty_runs(sim, work, INJECTORS, names, on_result)
+    rows = _merged_rows(RESULTS, seed, names, _faulty_runs(sim, work, INJECTORS, names, on_result), list(INJECTORS))
     target = [r for r in rows if r["fault"] == "gnss_outliers" and r["strength"] == 0.05 and r["status"] == "ran"]
     summary = {"target_abs_rms_ratio": TARGET_ABS, "target_rel_5m_ratio": TARGET_REL}
     if target:
@@ -176,6 +176,15 @@ def gnss_part(seed: int, names: list[str], work_root: Path = CACHE) -> None:
                                    "machine": f"{os.cpu_count()} cores, shared", "clean": clean,
                                    "summary": summary, "runs": rows}, indent=2) + "\n")
     print(f"wrote {RESULTS}")
+
+
+def _merged_rows(path: Path, seed: int, names: list[str], rows: list[dict], order: list[str]) -> list[dict]:
+    """``rows`` plus the rows of the faults not run now from the results file of the same seed
+    (``--faults`` runs a subset), in the order of ``order``."""
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    kept = [r for r in old.get("runs", []) if r["fault"] not in names] if old.get("seed") == seed else []
+    return sorted(kept + rows, key=lambda r: (order.index(r["fault"]) if r["fault"] in order else len(order),
+                                              r["strength"]))
 
 
 def _positions_mm(table: dict) -> np.ndarray:
@@ -221,7 +230,8 @@ def total_station_part(seed: int, names: list[str], work_root: Path = CACHE) -> 
         row.update(interval_imu_s=[t0, t1], max_change_outside_mm=float(change[outside].max()),
                    max_change_inside_mm=float(change[~outside].max()) if (~outside).any() else 0.0)
 
-    rows = _faulty_runs(sim, work, TS_INJECTORS, names, on_result)
+    rows = _merged_rows(RESULTS_TS, seed, names, _faulty_runs(sim, work, TS_INJECTORS, names, on_result),
+                        list(TS_INJECTORS))
     ten = [r for r in rows if r["fault"] == "prism_mislock" and r["strength"] == 10.0 and r["status"] == "ran"]
     summary = {"target_mislock_outside_mm": TARGET_MISLOCK_MM}
     if ten:

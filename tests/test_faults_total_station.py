@@ -114,6 +114,7 @@ SHORT = ["motion.segments=[{hold_s: 20}, {move_to_m: 250, speed_mps: 1.5, accel_
 MISLOCK = {"start_after_s": 40.0, "duration_s": 5.0}
 GAP = {"start_after_s": 70.0, "duration_s": 10.0}
 JUMP = {"after_s": 20.0, "step_s": 0.04}
+MOVING = {"start_after_s": 60.0, "duration_s": 8.0, "offset_m": 0.03}   # a reflector 3 cm beside the prism
 
 
 def _faulty_run(d):
@@ -126,24 +127,30 @@ def _faulty_run(d):
     log, gap = inj.inject_prism_gap(log, strength=GAP["duration_s"], start_s=t1 + GAP["start_after_s"])
     log, jump = inj.inject_clock_jump(log, strength=JUMP["step_s"], topic="/total_station/TS02",
                                       at_s=t2 + JUMP["after_s"])
+    log, moving = inj.inject_prism_mislock(log, strength=MOVING["duration_s"], station="TS02", moving=True,
+                                           start_s=t2 + JUMP["step_s"] + MOVING["start_after_s"],
+                                           offset_m=MOVING["offset_m"])
     write_log(d / "faulty.mcap", log)
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
     data["inputs"]["log"] = str(d / "faulty.mcap")
     result = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / "out")
     truth = json.loads((d / "truth.json").read_text())["total_stations"]
-    return result, truth, mis, gap, jump
+    return result, truth, mis, gap, jump, moving
 
 
 def _imu(truth, sid, t_station):
     return (np.asarray(t_station) - truth[sid]["clock_offset_s"]) / (1.0 + 1e-6 * truth[sid]["clock_drift_ppm"])
 
 
-def _check_mislock(result, truth, mis):
+def _check_mislocks(result, truth, mis, moving):
+    """The fixed reflector (TS01) and the one moving with the prism (TS02, after its clock jump)
+    found by the step check before the fusion, to a reading."""
     ev = result.metrics["faults"]["prism_mislocks"]["events"]
-    assert [e["station"] for e in ev] == ["TS01"]
-    t_true = _imu(truth, "TS01", mis["t_s"])                 # the mis-locked readings on the IMU clock
-    assert abs(ev[0]["start_s"] - t_true[0]) <= 0.21 and abs(ev[0]["end_s"] - t_true[-1]) <= 0.21
-    assert abs(ev[0]["readings"] - mis["readings"]) <= 2
+    assert [e["station"] for e in ev] == ["TS01", "TS02"]
+    for e, injected in zip(ev, (mis, moving)):
+        t_true = _imu(truth, e["station"], np.array(injected["t_s"]) - (JUMP["step_s"] if e["station"] == "TS02" else 0))
+        assert abs(e["start_s"] - t_true[0]) <= 0.05 and abs(e["end_s"] - t_true[-1]) <= 0.05
+        assert e["readings"] == injected["readings"] and e["detected_by"] == "step_check"
 
 
 def _check_gap(result, truth, gap):
@@ -166,19 +173,19 @@ def _check_clock_jump(result, truth, jump):
 
 def _check_summary_and_report(result):
     text = format_summary(result)
-    assert "prism_mislocks 1" in text and "prism_gaps 1" in text and "TS01 mis-locked" in text
+    assert "prism_mislocks 2" in text and "prism_gaps 1" in text and "TS01 mis-locked" in text
     assert "TS01 lost the prism" in text and "/total_station/TS02 clock jump of +4" in text
     html = (result.out_dir / "report.html").read_text()
-    assert "<h3>prism_mislocks (1)</h3>" in html and "<h3>prism_gaps (1)</h3>" in html
+    assert "<h3>prism_mislocks (2)</h3>" in html and "<h3>prism_gaps (1)</h3>" in html
 
 
 @pytest.mark.slow
 def test_short_bridge_with_a_mislock_a_gap_and_a_station_clock_jump(tmp_path):
-    """One run (one test, so that two xdist workers do not each run it): the mis-lock and the
+    """One run (one test, so that two xdist workers do not each run it): the mis-locks and the
     gap in metrics.json faults with their intervals to about a reading, the clock jump corrected
     to 2 ms, all three in the summary and the report."""
-    result, truth, mis, gap, jump = _faulty_run(tmp_path)
-    _check_mislock(result, truth, mis)
+    result, truth, mis, gap, jump, moving = _faulty_run(tmp_path)
+    _check_mislocks(result, truth, mis, moving)
     _check_gap(result, truth, gap)
     _check_clock_jump(result, truth, jump)
     _check_summary_and_report(result)

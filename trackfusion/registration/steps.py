@@ -20,14 +20,22 @@ explains it; a reading-to-reading jump does not fit it.
 
 **Steps.** Splits with ``z2 > Z_MIN**2`` that are the largest within ``K`` splits are steps.
 
-**Mis-locks.** A step followed, within ``MAX_INTERVAL_S`` and without a tracking gap, by a step
-back (``S_b ~ -S_a``: their sum within ``PAIR_CHI2`` of its covariance, or within
-``PAIR_FRACTION`` of the step) bounds a mis-lock: the readings from the first after ``S_a`` to
-the last before ``S_b`` are flagged and left out of the fusion. A step without a return is not
-acted on here: a clock jump below the clock-jump detection (a step ``v J`` along the track), a
-station re-acquiring the prism after locking onto a wrong target first, a fixed reflector (the
-jump comes with a change of velocity) are left to the gate of the fusion
-(:mod:`.mislock`) and the clock-jump detection (:mod:`.clock_jumps`).
+**Mis-locks onto a reflector that moves with the prism.** A step followed, within
+``MAX_INTERVAL_S`` and without a tracking gap, by a step back (``S_b ~ -S_a``: their sum within
+``PAIR_CHI2`` of its covariance, or within ``PAIR_FRACTION`` of the step) bounds a mis-lock:
+the readings from the first after ``S_a`` to the last before ``S_b`` are flagged and left out of
+the time synchronisation, the clock-jump search and the fusion. A step without a return is not
+a mis-lock by itself: a clock jump below the clock-jump detection (a step ``v J`` along the
+track) or a station re-acquiring the prism after locking onto a wrong target first look the
+same.
+
+**Mis-locks onto a reflector that does not move** (:func:`motionless_mislocks`, after the time
+synchronisation). Between two consecutive steps without a return, the readings are not of the
+prism when they did not travel with it: their chord falls short of the odometer's travel over
+the same interval by more than ``MOTION_FRACTION`` of it and ``MOTION_MIN_M`` (the track is
+one-dimensional and smooth, so the prism's chord is its travel, less centimetres on a curve).
+At rest this says nothing; such a mis-lock, and whatever the step check misses, is left to the
+gate of the fusion (:mod:`.mislock`).
 
 Not flagged by construction: a hand-over (each station is checked on its own readings; a
 station that stops or starts tracking has no split there), curvature, accelerating and
@@ -57,6 +65,9 @@ PAIR_CHI2 = 25.0
 PAIR_FRACTION = 0.2
 #: longest mis-lock bounded by a step and its return [s]
 MAX_INTERVAL_S = 300.0
+#: between two steps, readings whose chord falls short of the odometer's travel by more than
+#: this fraction of it (and ``MOTION_MIN_M`` [m]) are not of the prism (a fixed reflector)
+MOTION_FRACTION, MOTION_MIN_M = 0.2, 0.5
 #: an interval between readings longer than this [s] (and 3 median intervals) is a tracking gap
 GAP_S = 1.0
 #: the trolley's short-wave motion that a cubic does not follow [m] per axis (added to each
@@ -151,41 +162,78 @@ def _returns(S_a: np.ndarray, C_a: np.ndarray, S_b: np.ndarray, C_b: np.ndarray)
     return chi2 < PAIR_CHI2 or float(np.linalg.norm(d)) < PAIR_FRACTION * float(np.linalg.norm(S_a))
 
 
+def _run_index(t: np.ndarray) -> np.ndarray:
+    """(N,) index of the tracked run each reading belongs to."""
+    run = np.zeros(t.size, dtype=int)
+    for j, (a, _b) in enumerate(_segments(t)):
+        run[a:] = j
+    return run
+
+
+def _event(ia: int, ib: int, sa: dict, sb: dict, kind: str) -> dict[str, Any]:
+    return {"first": ia, "last": ib - 1, "step_m": sa["step_m"].tolist(), "return_m": sb["step_m"].tolist(),
+            "z": float(min(sa["z"], sb["z"])), "kind": kind}
+
+
 def station_mislocks(t_s: np.ndarray, pos_n: np.ndarray, cov_n: np.ndarray
-                     ) -> tuple[np.ndarray, list[dict[str, Any]]]:
-    """Mis-locks of one station found by the step check (module docstring).
+                     ) -> tuple[np.ndarray, list[dict[str, Any]], list[dict[str, Any]]]:
+    """Mis-locks of one station found by the step check: a step and its return (module docstring).
 
     Arguments as :func:`step_profile`. Returns ``flagged`` (N,) bool (the readings inside the
-    mis-locks) and one ``{"first", "last", "step_m", "return_m", "z"}`` per mis-lock: indices of
-    its first and last reading, the step at its start and at its end [m] (3,) and the smaller
-    significance of the two [sigma]."""
+    mis-locks), one ``{"first", "last", "step_m", "return_m", "z", "kind": "step_and_return"}``
+    per mis-lock (indices of its first and last reading, the step at its start and at its end
+    [m] (3,), the smaller significance of the two [sigma]) and the steps without a return
+    (``{"split", "step_m", "cov_m2", "z"}``, for :func:`motionless_mislocks`)."""
     t = np.asarray(t_s, dtype=float)
     flagged = np.zeros(t.size, dtype=bool)
     prof = step_profile(t, pos_n, cov_n)
     if prof["split"].size == 0:
-        return flagged, []
+        return flagged, [], []
     period = float(np.median(np.diff(t)))
     k = max(MIN_SIDE, int(round(WINDOW_S / period)))
-    peaks = _peaks(prof["split"], prof["z2"], k)
-    seg_of = np.zeros(t.size, dtype=int)
-    for j, (a, _b) in enumerate(_segments(t)):
-        seg_of[a:] = j
+    found = [{"split": int(prof["split"][i]), "step_m": prof["step_m"][i], "cov_m2": prof["cov_m2"][i],
+              "z": float(np.sqrt(prof["z2"][i]))} for i in _peaks(prof["split"], prof["z2"], k)]
+    run = _run_index(t)
     out: list[dict[str, Any]] = []
+    paired: set[int] = set()
     i = 0
-    while i < peaks.size:
-        a = peaks[i]
-        ia = int(prof["split"][a])
-        for jb in range(i + 1, peaks.size):
-            b = peaks[jb]
-            ib = int(prof["split"][b])
-            if seg_of[ib] != seg_of[ia] or t[ib - 1] - t[ia] > MAX_INTERVAL_S:
+    while i < len(found):
+        a = found[i]
+        for jb in range(i + 1, len(found)):
+            b = found[jb]
+            if run[b["split"]] != run[a["split"]] or t[b["split"] - 1] - t[a["split"]] > MAX_INTERVAL_S:
                 break
-            if _returns(prof["step_m"][a], prof["cov_m2"][a], prof["step_m"][b], prof["cov_m2"][b]):
-                flagged[ia:ib] = True
-                out.append({"first": ia, "last": ib - 1, "step_m": prof["step_m"][a].tolist(),
-                            "return_m": prof["step_m"][b].tolist(),
-                            "z": float(np.sqrt(min(prof["z2"][a], prof["z2"][b])))})
+            if _returns(a["step_m"], a["cov_m2"], b["step_m"], b["cov_m2"]):
+                flagged[a["split"]:b["split"]] = True
+                out.append(_event(a["split"], b["split"], a, b, "step_and_return"))
+                paired |= {i, jb}
                 i = jb
                 break
         i += 1
+    return flagged, out, [f for j, f in enumerate(found) if j not in paired]
+
+
+def motionless_mislocks(t_imu_s: np.ndarray, pos_n: np.ndarray, unpaired: list[dict[str, Any]],
+                        odo_t_s: np.ndarray, odo_d_m: np.ndarray) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """Mis-locks onto a reflector that does not move with the trolley (module docstring), between
+    two consecutive steps without a return (``unpaired`` of :func:`station_mislocks`).
+
+    ``t_imu_s`` (N,) the station's readings on the IMU clock [s]; ``pos_n`` (N, 3) [m];
+    ``odo_t_s``, ``odo_d_m`` the odometer. The readings between the steps are flagged when their
+    chord ``|p_last - p_first|`` falls short of the odometer's travel over them by more than
+    ``MOTION_FRACTION`` of it and ``MOTION_MIN_M``. Returns ``flagged`` (N,) bool and one event
+    per mis-lock (as :func:`station_mislocks`, ``kind``: ``"motionless"``)."""
+    t = np.asarray(t_imu_s, dtype=float)
+    flagged = np.zeros(t.size, dtype=bool)
+    run = _run_index(t)
+    out: list[dict[str, Any]] = []
+    for a, b in zip(unpaired[:-1], unpaired[1:]):
+        ia, ib = a["split"], b["split"]
+        if run[ia] != run[ib] or t[ib - 1] - t[ia] > MAX_INTERVAL_S:
+            continue
+        travel = float(abs(np.interp(t[ib - 1], odo_t_s, odo_d_m) - np.interp(t[ia], odo_t_s, odo_d_m)))
+        chord = float(np.linalg.norm(pos_n[ib - 1] - pos_n[ia]))
+        if travel - chord > max(MOTION_FRACTION * travel, MOTION_MIN_M):
+            flagged[ia:ib] = True
+            out.append(_event(ia, ib, a, b, "motionless"))
     return flagged, out

@@ -29,7 +29,7 @@ from ..fusion.problem import PrismReadings
 from ..sensors.types import OdometerData, TotalStationData
 from . import timesync
 from .clock_jumps import correct_station_clock_jumps
-from .steps import station_mislocks
+from .steps import motionless_mislocks, station_mislocks
 from .polar import StationSetup
 from .seed_method import SeedRegistration, overlap_axes, register_seed
 from .stations import ARCSEC, Resection, readings_to_n, station_setup
@@ -95,7 +95,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
         setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
         pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
                                      cfg.refraction_k, *prec)
-        flagged, mislocks = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: readings of another reflector
+        flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: another reflector
         ok = ~flagged
         sync = None
         if sc.clock_offset_s is not None:
@@ -115,6 +115,9 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
                                             fs.time_sync)
                 offset = sync.offset_s
             clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
+        if odometer is not None:  # issue 8: a reflector that does not move with the trolley
+            still, more = motionless_mislocks(t_station - offset, pos_n, unpaired, odometer.t_s, odometer.distance_m)
+            flagged, mislocks = flagged | still, sorted(mislocks + more, key=lambda m: m["first"])
         step_mislocks += [{"station": sid, "start_s": float(t_station[m["first"]] - offset),
                            "end_s": float(t_station[m["last"]] - offset), **m} for m in mislocks]
         centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
