@@ -88,7 +88,7 @@ def test_mislock_episodes_from_rejected_runs():
     both = prism_mislocks(t, station, ["TS01"], flag, by_step_check=flag & (t < 7.05))
     assert both[0]["detected_by"] == "step_check+gate"
     lines = summary_lines({"prism_mislocks": {"count": 1, "events": ev}})
-    assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected)"]
+    assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected, gate)"]
 
 
 def test_inclinometer_clock_jump_sub_period_corrected_else_refused():

@@ -303,7 +303,9 @@ def summary_lines(faults: dict[str, Any], limit: int = 5) -> list[str]:
     for kind, verb in how.items():
         events = faults.get(kind, {}).get("events", [])
         lines += [f"  {e['station']} {verb} {e['start_s']:.1f}-{e['end_s']:.1f} s"
-                  + (f" ({e['readings']} readings rejected)" if "readings" in e else "") for e in events[:limit]]
+                  + (f" ({e['readings']} readings rejected" + (f", {e['detected_by'].replace('_', ' ')})"
+                                                                 if "detected_by" in e else ")")
+                     if "readings" in e else "") for e in events[:limit]]
         if len(events) > limit:
             lines.append(f"  ... {len(events) - limit} more {kind} in metrics.json")
     jumps = faults.get("clock_jumps", {}).get("events", [])

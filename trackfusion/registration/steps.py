@@ -109,11 +109,13 @@ def _window_fits(t: np.ndarray, pos: np.ndarray, info: np.ndarray, splits: np.nd
     N = N.reshape(C, _P, _P, 3, 3).transpose(0, 1, 3, 2, 4).reshape(C, 3 * _P, 3 * _P)
     Wp = np.einsum("cmij,cmj->cmi", W, p)
     rhs = np.einsum("cma,cmi->cai", basis, Wp).reshape(-1, 3 * _P)
-    cov = np.linalg.inv(N)
-    theta = np.einsum("cpq,cq->cp", cov, rhs)
+    unit = np.zeros((3 * _P, 3))
+    unit[-3:] = np.eye(3)
+    sol = np.linalg.solve(N, np.concatenate([rhs[:, :, None], np.broadcast_to(unit, (C, 3 * _P, 3))], axis=2))
+    theta, cov_S = sol[:, :, 0], sol[:, -3:, 1:]          # the estimate, the step's block of N^-1
     chi2 = np.einsum("cmi,cmi->c", p, Wp) - np.einsum("cp,cp->c", theta, rhs)
     dof = 3 * 2 * k - 3 * _P
-    return theta[:, -3:], cov[:, -3:, -3:], np.maximum(chi2, 0.0) / dof
+    return theta[:, -3:], cov_S, np.maximum(chi2, 0.0) / dof
 
 
 def step_profile(t_s: np.ndarray, pos_n: np.ndarray, cov_n: np.ndarray) -> dict[str, np.ndarray]:
