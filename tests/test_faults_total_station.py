@@ -65,6 +65,19 @@ def test_a_clock_jump_the_motion_cannot_pin_is_refused():
         correct_station_clock_jumps("TS09", t_station, 0.0, pos, cov, t_odo, d)
 
 
+def test_a_clock_jump_hidden_in_a_tracking_gap_is_refused_a_clean_gap_passes():
+    """No reading sees a step inside a gap: a clock jump and an odometer slip are the same step."""
+    t, pos, cov, t_odo, d = _straight_run()
+    keep = (t < 60.0) | (t > 66.0)                          # the station lost the prism for 6 s
+    t, pos, cov = t[keep], pos[keep], cov[keep]
+    fixed, jumps = correct_station_clock_jumps("TS09", t + 1.0, 1.0, pos, cov, t_odo, d)
+    assert jumps == [] and np.array_equal(fixed, t + 1.0)
+    t_station = t + 1.0 + 0.05 * (t > 63.0)
+    with pytest.raises(RegistrationError, match=r"/total_station/TS09: after its tracking gap 59\.9-66\.\d s "
+                       r"\(IMU clock\) the readings lie 7\d mm along the track .* \(\+[45]\d ms .*cannot tell which"):
+        correct_station_clock_jumps("TS09", t_station, 1.0, pos, cov, t_odo, d)
+
+
 def test_gaps_are_losses_of_lock_not_hand_overs():
     ta = np.r_[np.arange(0.0, 50.0, 0.1), np.arange(60.0, 100.0, 0.1), np.arange(300.0, 400.0, 0.1)]
     tb = np.arange(104.0, 296.0, 0.1)                       # TS02 tracks while the prism faces it
