@@ -65,6 +65,19 @@ def test_a_clock_jump_the_motion_cannot_pin_is_refused():
         correct_station_clock_jumps("TS09", t_station, 0.0, pos, cov, t_odo, d)
 
 
+def test_a_clock_jump_hidden_in_a_tracking_gap_is_refused_a_clean_gap_passes():
+    """No reading sees a step inside a gap: a clock jump and an odometer slip are the same step."""
+    t, pos, cov, t_odo, d = _straight_run()
+    keep = (t < 60.0) | (t > 66.0)                          # the station lost the prism for 6 s
+    t, pos, cov = t[keep], pos[keep], cov[keep]
+    fixed, jumps = correct_station_clock_jumps("TS09", t + 1.0, 1.0, pos, cov, t_odo, d)
+    assert jumps == [] and np.array_equal(fixed, t + 1.0)
+    t_station = t + 1.0 + 0.05 * (t > 63.0)
+    with pytest.raises(RegistrationError, match=r"/total_station/TS09: after its tracking gap 59\.9-66\.\d s "
+                       r"\(IMU clock\) the readings lie 7\d mm along the track .* \(\+[45]\d ms .*cannot tell which"):
+        correct_station_clock_jumps("TS09", t_station, 1.0, pos, cov, t_odo, d)
+
+
 def test_gaps_are_losses_of_lock_not_hand_overs():
     ta = np.r_[np.arange(0.0, 50.0, 0.1), np.arange(60.0, 100.0, 0.1), np.arange(300.0, 400.0, 0.1)]
     tb = np.arange(104.0, 296.0, 0.1)                       # TS02 tracks while the prism faces it
@@ -83,9 +96,12 @@ def test_mislock_episodes_from_rejected_runs():
     station = np.zeros(t.size, int)
     flag = (t > 5.05) & (t < 8.05)
     ev = prism_mislocks(t, station, ["TS01"], flag)
-    assert ev == [{"station": "TS01", "start_s": pytest.approx(5.1), "end_s": pytest.approx(8.0), "readings": 30}]
+    assert ev == [{"station": "TS01", "start_s": pytest.approx(5.1), "end_s": pytest.approx(8.0), "readings": 30,
+                   "detected_by": "gate"}]
+    both = prism_mislocks(t, station, ["TS01"], flag, by_step_check=flag & (t < 7.05))
+    assert both[0]["detected_by"] == "step_check+gate"
     lines = summary_lines({"prism_mislocks": {"count": 1, "events": ev}})
-    assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected)"]
+    assert lines == ["  TS01 mis-locked 5.1-8.0 s (30 readings rejected, gate)"]
 
 
 def test_inclinometer_clock_jump_sub_period_corrected_else_refused():
@@ -111,6 +127,7 @@ SHORT = ["motion.segments=[{hold_s: 20}, {move_to_m: 250, speed_mps: 1.5, accel_
 MISLOCK = {"start_after_s": 40.0, "duration_s": 5.0}
 GAP = {"start_after_s": 70.0, "duration_s": 10.0}
 JUMP = {"after_s": 20.0, "step_s": 0.04}
+MOVING = {"start_after_s": 60.0, "duration_s": 8.0, "offset_m": 0.03}   # a reflector 3 cm beside the prism
 
 
 def _faulty_run(d):
@@ -123,24 +140,30 @@ def _faulty_run(d):
     log, gap = inj.inject_prism_gap(log, strength=GAP["duration_s"], start_s=t1 + GAP["start_after_s"])
     log, jump = inj.inject_clock_jump(log, strength=JUMP["step_s"], topic="/total_station/TS02",
                                       at_s=t2 + JUMP["after_s"])
+    log, moving = inj.inject_prism_mislock(log, strength=MOVING["duration_s"], station="TS02", moving=True,
+                                           start_s=t2 + JUMP["step_s"] + MOVING["start_after_s"],
+                                           offset_m=MOVING["offset_m"])
     write_log(d / "faulty.mcap", log)
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
     data["inputs"]["log"] = str(d / "faulty.mcap")
     result = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / "out")
     truth = json.loads((d / "truth.json").read_text())["total_stations"]
-    return result, truth, mis, gap, jump
+    return result, truth, mis, gap, jump, moving
 
 
 def _imu(truth, sid, t_station):
     return (np.asarray(t_station) - truth[sid]["clock_offset_s"]) / (1.0 + 1e-6 * truth[sid]["clock_drift_ppm"])
 
 
-def _check_mislock(result, truth, mis):
+def _check_mislocks(result, truth, mis, moving):
+    """The fixed reflector (TS01) and the one moving with the prism (TS02, after its clock jump)
+    found by the step check before the fusion, to a reading."""
     ev = result.metrics["faults"]["prism_mislocks"]["events"]
-    assert [e["station"] for e in ev] == ["TS01"]
-    t_true = _imu(truth, "TS01", mis["t_s"])                 # the mis-locked readings on the IMU clock
-    assert abs(ev[0]["start_s"] - t_true[0]) <= 0.21 and abs(ev[0]["end_s"] - t_true[-1]) <= 0.21
-    assert abs(ev[0]["readings"] - mis["readings"]) <= 2
+    assert [e["station"] for e in ev] == ["TS01", "TS02"]
+    for e, injected in zip(ev, (mis, moving)):
+        t_true = _imu(truth, e["station"], np.array(injected["t_s"]) - (JUMP["step_s"] if e["station"] == "TS02" else 0))
+        assert abs(e["start_s"] - t_true[0]) <= 0.05 and abs(e["end_s"] - t_true[-1]) <= 0.05
+        assert e["readings"] == injected["readings"] and e["detected_by"] == "step_check"
 
 
 def _check_gap(result, truth, gap):
@@ -163,19 +186,19 @@ def _check_clock_jump(result, truth, jump):
 
 def _check_summary_and_report(result):
     text = format_summary(result)
-    assert "prism_mislocks 1" in text and "prism_gaps 1" in text and "TS01 mis-locked" in text
+    assert "prism_mislocks 2" in text and "prism_gaps 1" in text and "TS01 mis-locked" in text
     assert "TS01 lost the prism" in text and "/total_station/TS02 clock jump of +4" in text
     html = (result.out_dir / "report.html").read_text()
-    assert "<h3>prism_mislocks (1)</h3>" in html and "<h3>prism_gaps (1)</h3>" in html
+    assert "<h3>prism_mislocks (2)</h3>" in html and "<h3>prism_gaps (1)</h3>" in html
 
 
 @pytest.mark.slow
 def test_short_bridge_with_a_mislock_a_gap_and_a_station_clock_jump(tmp_path):
-    """One run (one test, so that two xdist workers do not each run it): the mis-lock and the
+    """One run (one test, so that two xdist workers do not each run it): the mis-locks and the
     gap in metrics.json faults with their intervals to about a reading, the clock jump corrected
     to 2 ms, all three in the summary and the report."""
-    result, truth, mis, gap, jump = _faulty_run(tmp_path)
-    _check_mislock(result, truth, mis)
+    result, truth, mis, gap, jump, moving = _faulty_run(tmp_path)
+    _check_mislocks(result, truth, mis, moving)
     _check_gap(result, truth, gap)
     _check_clock_jump(result, truth, jump)
     _check_summary_and_report(result)

@@ -10,7 +10,7 @@
   (IMU, NHC, GNSS), from the odometer factor's residuals after the solve (the Huber loss has
   already down-weighted them).
 * :func:`prism_mislocks`, :func:`prism_gaps`: total-station readings of another reflector
-  (the gate's mis-lock runs) and intervals in which a station lost the prism while no other
+  (the step check's and the gate's mis-lock runs) and intervals in which a station lost the prism while no other
   station was tracking it.
 * :func:`summarise_faults`: the ``faults`` section from everything detected.
 
@@ -193,18 +193,23 @@ def odometer_slips(t_key_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, sca
 
 # --- total stations ----------------------------------------------------------------------------------
 
-def prism_mislocks(t_s: np.ndarray, station: np.ndarray, station_ids: list[str], mislocked: np.ndarray
-                   ) -> list[dict[str, Any]]:
-    """Mis-lock episodes: runs of consecutive readings of one station that the gate rejected as
-    ``mis_lock`` (registration/mislock.py). ``t_s`` (N,) reading times [s] sorted, ``station``
-    (N,) index into ``station_ids``, ``mislocked`` (N,) bool. One ``{"station", "start_s",
-    "end_s", "readings"}`` per run (first and last mis-locked reading)."""
+def prism_mislocks(t_s: np.ndarray, station: np.ndarray, station_ids: list[str], mislocked: np.ndarray,
+                   by_step_check: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """Mis-lock episodes: runs of consecutive readings of one station rejected as ``mis_lock``,
+    by the step check before the fusion (registration/steps.py) or by the gate
+    (registration/mislock.py). ``t_s`` (N,) reading times [s] sorted, ``station`` (N,) index
+    into ``station_ids``, ``mislocked`` (N,) bool, ``by_step_check`` (N,) bool (None: none). One
+    ``{"station", "start_s", "end_s", "readings", "detected_by"}`` per run (first and last
+    mis-locked reading; ``detected_by``: ``step_check``, ``gate`` or ``step_check+gate``)."""
+    step = np.zeros(t_s.size, dtype=bool) if by_step_check is None else by_step_check
     out = []
     for j, sid in enumerate(station_ids):
         mine = np.flatnonzero(station == j)
         for a, b in _runs(mislocked[mine]):
+            n_step = int(step[mine[a:b + 1]].sum())
+            how = "step_check" if n_step == b - a + 1 else "gate" if n_step == 0 else "step_check+gate"
             out.append({"station": sid, "start_s": float(t_s[mine[a]]), "end_s": float(t_s[mine[b]]),
-                        "readings": int(b - a + 1)})
+                        "readings": int(b - a + 1), "detected_by": how})
     return sorted(out, key=lambda e: (e["start_s"], e["station"]))
 
 
@@ -260,8 +265,9 @@ def _prism_faults(prisms, result) -> dict[str, list]:
     for j in np.unique(mis_sid):
         mislocked |= (prisms.station == j) & np.isin(prisms.t_s, mis_t[mis_sid == j])
     order = np.argsort(t_imu, kind="stable")
+    step = prisms.flagged[order] if prisms.flagged is not None else None
     return {"prism_mislocks": prism_mislocks(t_imu[order], prisms.station[order], prisms.station_ids,
-                                             mislocked[order]),
+                                             mislocked[order], step),
             "prism_gaps": prism_gaps(t_imu[order], prisms.station[order], prisms.station_ids)}
 
 
@@ -297,7 +303,9 @@ def summary_lines(faults: dict[str, Any], limit: int = 5) -> list[str]:
     for kind, verb in how.items():
         events = faults.get(kind, {}).get("events", [])
         lines += [f"  {e['station']} {verb} {e['start_s']:.1f}-{e['end_s']:.1f} s"
-                  + (f" ({e['readings']} readings rejected)" if "readings" in e else "") for e in events[:limit]]
+                  + (f" ({e['readings']} readings rejected" + (f", {e['detected_by'].replace('_', ' ')})"
+                                                                 if "detected_by" in e else ")")
+                     if "readings" in e else "") for e in events[:limit]]
         if len(events) > limit:
             lines.append(f"  ... {len(events) - limit} more {kind} in metrics.json")
     jumps = faults.get("clock_jumps", {}).get("events", [])

@@ -113,7 +113,8 @@ class PrismReadings:
     of each station's rotation); lever_arm_b (3,) [m] IMU origin to the prism centre;
     prior_sigma (J,8) standard deviations of each station's correction state
     (fusion/factors.py ``STATION_STATE_DIM``: rotation [rad] (3, in ``n``), translation [m] (3),
-    clock offset [s], clock drift [ppm]) about zero.
+    clock offset [s], clock drift [ppm]) about zero. flagged (N,) bool or None: readings left out
+    of the fusion before it (issue 8: the step check's mis-locks, registration/steps.py).
     """
 
     t_s: np.ndarray
@@ -124,3 +125,8 @@ class PrismReadings:
     station_pos_n: np.ndarray
     lever_arm_b: np.ndarray
     prior_sigma: np.ndarray
+    flagged: np.ndarray | None = None
+
+    def usable(self) -> np.ndarray:
+        """Indices (M,) of the readings not flagged before the fusion."""
+        return np.arange(self.t_s.size) if self.flagged is None else np.flatnonzero(~self.flagged)

@@ -27,7 +27,7 @@ from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
-from ..registration.mislock import gate_prisms
+from ..registration.mislock import gate_prisms, prefused_rejections
 
 DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
@@ -768,8 +768,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             ok &= gnss.fix_quality != 5
         used = np.flatnonzero(ok)
     rejected: list[dict] = []
-    prism_used = np.arange(prisms.t_s.size) if prisms is not None else None
-    rejected_prism: list[dict] = []
+    # issue 8: readings the step check flagged before the fusion are rejected from the start
+    prism_used, rejected_prism = prefused_rejections(prisms) if prisms is not None else (None, [])
     tic = time.perf_counter()
     iterations = 0
     cost0 = None
@@ -846,8 +846,8 @@ def _with_prism_fixes(problem: FusionProblem) -> FusionProblem:
     """The problem with its prism readings standing in as position fixes (for the alignment's
     heading and the initial positions only)."""
     from dataclasses import replace
-    pr = problem.prisms
-    fixes = GnssFixes(pr.t_s, pr.pos_n, pr.cov_n, np.full(pr.t_s.size, 4), pr.lever_arm_b)
+    pr, ok = problem.prisms, problem.prisms.usable()  # not the step check's mis-locks (issue 8)
+    fixes = GnssFixes(pr.t_s[ok], pr.pos_n[ok], pr.cov_n[ok], np.full(ok.size, 4), pr.lever_arm_b)
     return replace(problem, gnss=fixes)
 
 

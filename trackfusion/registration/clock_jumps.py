@@ -17,7 +17,7 @@ own offset error, and ``J = -e1 / b`` is the clock step (a timing error ``dt`` m
 ``v dt``). Weighted least squares with each reading's polar covariance along the axis. Readings
 at rest carry no timing information and are left out, so a step during a stop is found from
 the motion on both sides of it. Windows spanning a tracking gap (``fusion.faults.PRISM_GAP_MIN_S``)
-or whose fit does not explain the readings (a mis-lock: normalised chi-square above
+other than at their split, or whose fit does not explain the readings (a mis-lock: normalised chi-square above
 ``CHI2_MAX``) are skipped. Every split between moving readings is a candidate; the one of
 largest ``|J| / sigma_J`` is refined to the split of smallest chi-square within a quarter
 window.
@@ -36,8 +36,15 @@ and the odometer's estimate is taken.
 searched, at most ``MAX_JUMPS``); otherwise the run is refused (:class:`RegistrationError`): the
 motion around the step does not place the later readings in time well enough.
 
-Not found: a step inside a tracking gap (the windows do not span gaps) and steps below
-``Z_MIN`` sigma (a few milliseconds at walking speed). Pure maths on arrays.
+**Across a tracking gap** (up to ``GAP_MAX_S``, at the split itself; the odometer bridges it)
+the same odometer fit shows a step of the ``s - d`` relation, but no reading sees it: a clock
+jump while the station was not tracking and an odometer slip in the gap are the same step, and
+the station's stamps cannot tell them apart. Correcting the clock for a slip would move every
+later reading, ignoring a jump would leave them off by ``v J``: refused
+(:class:`RegistrationError`).
+
+Not found: a step inside a gap longer than ``GAP_MAX_S``, and steps below ``Z_MIN`` sigma (a
+few milliseconds at walking speed). Pure maths on arrays.
 """
 
 from __future__ import annotations
@@ -61,6 +68,8 @@ Z_MIN = 10.0
 MAX_SIGMA_S = 2e-3
 #: at most this many jumps per station are corrected
 MAX_JUMPS = 10
+#: a tracking gap up to this long [s] may lie at a candidate split (the odometer bridges it)
+GAP_MAX_S = 30.0
 #: seconds of the station's own readings on each side of the split for the attribution
 STATION_WINDOW_S = 2.0
 #: candidate splits fitted at once (memory: CHUNK x 2 WINDOW_S x rate x 3 x 3 floats)
@@ -118,17 +127,17 @@ def _odometer_fit(splits: np.ndarray, k: int, s_idx: np.ndarray, t: np.ndarray, 
     return J, sigma_J, chi2
 
 
-def _station_only_step(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, i0: int, i1: int, first_after: int
-                       ) -> tuple[float, float]:
+def _station_only_step(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, i0: int, i1: int, first_after: int,
+                       use: np.ndarray) -> tuple[float, float]:
     """The step in time [s] and its sigma from the station's own readings i0..i1-1 (original
-    indices): a cubic in time of the positions along the principal axis plus a step after
-    ``first_after``, divided by the speed at the split."""
-    sl = slice(i0, i1)
+    indices; of those, ``use`` (i1 - i0,) bool): a cubic in time of the positions along the
+    principal axis plus a step after ``first_after``, divided by the speed at the split."""
+    sl = np.arange(i0, i1)[use]
     s, sig = _axis_projection(pos[None, sl], cov[None, sl])
     tau = t[sl] - 0.5 * (t[first_after - 1] + t[first_after])
     span = max(float(np.abs(tau).max()), 1e-3)
     x = tau / span
-    after = (np.arange(i0, i1) >= first_after).astype(float)
+    after = (sl >= first_after).astype(float)
     A = np.stack([np.ones_like(x), x, x**2, x**3, after], axis=-1)[None]
     sol, C, chi2 = _wls(A, s, sig, np.zeros(5))
     speed = sol[0, 1] / span
@@ -150,7 +159,11 @@ def _best_jump(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, odo_t_s: np.ndar
         return None
     gaps = np.r_[0, np.cumsum(np.diff(t) > max(PRISM_GAP_MIN_S, 3 * period))]
     splits = np.arange(k, moving.size - k + 1)
-    splits = splits[gaps[moving[splits + k - 1]] == gaps[moving[splits - k]]]   # no tracking gap inside
+    gid = gaps[moving]
+    inside = gid[splits + k - 1] == gid[splits - k]                              # no tracking gap inside
+    at_gap = ((gid[splits - 1] == gid[splits - k]) & (gid[splits + k - 1] == gid[splits])  # one gap, at the split
+              & (gid[splits] == gid[splits - 1] + 1) & (t[moving[splits]] - t[moving[splits - 1]] <= GAP_MAX_S))
+    splits, across = splits[inside | at_gap], at_gap[inside | at_gap]
     if splits.size == 0:
         return None
     fits = [_odometer_fit(c, k, moving, t, pos, cov, d, v) for c in np.array_split(splits, -(-splits.size // CHUNK))]
@@ -164,12 +177,13 @@ def _best_jump(t: np.ndarray, pos: np.ndarray, cov: np.ndarray, odo_t_s: np.ndar
     split = int(splits[j])
     first_after = int(moving[split - 1]) + 1
     return {"J": float(J[j]), "sigma": float(sJ[j]), "first_after": first_after,
-            "window": (int(moving[split - k]), int(moving[split + k - 1]) + 1), "speed": float(v[first_after])}
+            "window": (int(moving[split - k]), int(moving[split + k - 1]) + 1), "speed": float(v[first_after]),
+            "gap_s": (float(t[moving[split - 1]]), float(t[moving[split]])) if across[j] else None}
 
 
 def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset_s: float, pos_n: np.ndarray,
-                                cov_n: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray
-                                ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+                                cov_n: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray,
+                                excluded: np.ndarray | None = None) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """Find and remove the clock jumps of one station (module docstring).
 
     ``t_station_s`` (N,) [s, station clock]; ``offset_s`` the station's clock offset (the
@@ -177,11 +191,14 @@ def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset
     ``odo_t_s``, ``odo_d_m`` the odometer on the IMU clock. Returns the corrected station times
     (a new array: every stamp after a jump less the step) and one ``{"topic", "index", "t_s",
     "step_s", "sigma_s"}`` per jump (``index`` the first reading after it, ``t_s`` its IMU time
-    with the given offset). Raises :class:`RegistrationError` for a jump it cannot determine.
+    with the given offset). ``excluded`` (N,) bool: readings that are not of the prism (the step
+    check's mis-locks), left out of the search (their stamps are corrected too). Raises
+    :class:`RegistrationError` for a jump it cannot determine.
     """
     t_st = np.asarray(t_station_s, dtype=float).copy()
     pos, cov = np.asarray(pos_n, dtype=float), np.asarray(cov_n, dtype=float)
-    excluded = np.zeros(t_st.size, dtype=bool)
+    not_prism = np.zeros(t_st.size, dtype=bool) if excluded is None else np.asarray(excluded, dtype=bool)
+    excluded = not_prism.copy()
     jumps: list[dict[str, Any]] = []
     topic = f"/total_station/{station_id}"
     for _ in range(2 * MAX_JUMPS):
@@ -190,9 +207,17 @@ def correct_station_clock_jumps(station_id: str, t_station_s: np.ndarray, offset
             break
         J, sigma, i = found["J"], found["sigma"], found["first_after"]
         t_imu = float(t_st[i] - offset_s)
+        if found["gap_s"] is not None:  # no reading sees the step: a clock jump or an odometer slip
+            a, b = found["gap_s"]
+            raise RegistrationError(
+                f"{topic}: after its tracking gap {a:.1f}-{b:.1f} s (IMU clock) the readings lie "
+                f"{abs(J * found['speed']) * 1e3:.0f} mm along the track from where the odometer puts them "
+                f"({J * 1e3:+.0f} ms of the station's clock): a clock jump while the station was not tracking, "
+                "or an odometer slip in the gap; no reading sees the step, so the data cannot tell which")
         i0, i1 = (int(x) for x in np.searchsorted(t_st, [t_st[i] - STATION_WINDOW_S, t_st[i - 1] + STATION_WINDOW_S]))
-        if abs(found["speed"]) > MIN_SPEED_MPS and min(i - i0, i1 - i) >= 4:  # the station's stamps must show it
-            J_st, s_st = _station_only_step(t_st, pos, cov, i0, i1, i)
+        use = ~not_prism[i0:i1]
+        if abs(found["speed"]) > MIN_SPEED_MPS and min(use[:i - i0].sum(), use[i - i0:].sum()) >= 4:
+            J_st, s_st = _station_only_step(t_st, pos, cov, i0, i1, i, use)  # the station's stamps must show it
             if not abs(J_st - J) <= max(AGREE_SIGMA * np.hypot(sigma, s_st), AGREE_S):
                 excluded[found["window"][0]:found["window"][1]] = True   # not the station's clock
                 continue

@@ -15,6 +15,9 @@ The gate is **progressive**: a round flags only readings whose ``nis`` exceeds b
 (``nis`` ~ 1e7) pulls the first solve, Huber loss or not, and makes good readings around it
 fail the gate too; rejecting the gross readings first and solving again lets those readings
 pass, so the rejected run is the mis-lock and not tens of seconds around it.
+
+Readings that the step check (:mod:`.steps`) flagged before the fusion are rejected from the
+start (:func:`prefused_rejections`); the gate then judges the others.
 """
 
 from __future__ import annotations
@@ -62,5 +65,18 @@ def gate_prisms(blocks, used: np.ndarray, prisms, settings) -> tuple[np.ndarray,
         keep[mine[rej]] = False
         for i, m in zip(mine[rej], mis[rej]):
             out.append({"station": name, "t_s": float(prisms.t_s[used[i]]),
-                        "reason": "mis_lock" if m else "outlier", "nis": float(nis[i])})
+                        "reason": "mis_lock" if m else "outlier", "nis": float(nis[i]),
+                        "detected_by": "gate"})
     return used[keep], out
+
+
+def prefused_rejections(prisms) -> tuple[np.ndarray, list[dict]]:
+    """The readings of ``prisms`` (:class:`~trackfusion.fusion.problem.PrismReadings`) the fusion
+    starts with, and ``[{"station", "t_s", "reason": "mis_lock", "nis": None, "detected_by":
+    "step_check"}]`` for those flagged before it (``prisms.flagged``)."""
+    used = prisms.usable()
+    if prisms.flagged is None:
+        return used, []
+    out = [{"station": prisms.station_ids[int(prisms.station[i])], "t_s": float(prisms.t_s[i]), "reason": "mis_lock",
+            "nis": None, "detected_by": "step_check"} for i in np.flatnonzero(prisms.flagged)]
+    return used, out

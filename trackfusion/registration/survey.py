@@ -1,7 +1,8 @@
 """A total-station survey from readings to fusion input and back to a registration report.
 
 :func:`prepare_prisms`: set-ups (given or resected), readings to ``n``, each station's clock
-synchronised (:mod:`.timesync`) and its clock jumps removed (:mod:`.clock_jumps`), optionally the seed's registration applied
+synchronised (:mod:`.timesync`) and its clock jumps removed (:mod:`.clock_jumps`), readings of another reflector
+flagged by the step check first (:mod:`.steps`; left out of all of these and of the fusion), optionally the seed's registration applied
 (:mod:`.seed_method`), and the :class:`~trackfusion.fusion.problem.PrismReadings` with the
 priors of each station's correction state.
 
@@ -28,6 +29,7 @@ from ..fusion.problem import PrismReadings
 from ..sensors.types import OdometerData, TotalStationData
 from . import timesync
 from .clock_jumps import correct_station_clock_jumps
+from .steps import motionless_mislocks, station_mislocks
 from .polar import StationSetup
 from .seed_method import SeedRegistration, overlap_axes, register_seed
 from .stations import ARCSEC, Resection, readings_to_n, station_setup
@@ -48,12 +50,14 @@ class StationPrep:
     sync: timesync.TimeSync | None
     resection: Resection | None
     seed: SeedRegistration | None = None
+    flagged: np.ndarray | None = None  # (N,) bool: the step check's mis-locked readings (issue 8)
 
 
 @dataclass
 class PrismSurvey:
     """What :func:`prepare_prisms` produced: the stations (in configuration order), the fusion
-    input and ``info`` (``clock_jumps``: the stations' corrected clock jumps)."""
+    input and ``info`` (``clock_jumps``: the stations' corrected clock jumps; ``step_mislocks``:
+    the step check's mis-locks, :mod:`.steps`)."""
 
     stations: dict[str, StationPrep]
     readings: PrismReadings
@@ -83,6 +87,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
     prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
     stations: dict[str, StationPrep] = {}
     clock_jumps: list[dict] = []
+    step_mislocks: list[dict] = []
     for sid, sc in cfg.stations.items():
         d = data[sid]
         if d.t_s.size == 0:
@@ -90,6 +95,8 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
         setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
         pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
                                      cfg.refraction_k, *prec)
+        flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: another reflector
+        ok = ~flagged
         sync = None
         if sc.clock_offset_s is not None:
             offset = float(sc.clock_offset_s)
@@ -97,21 +104,29 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
             if odometer is None:
                 raise RegistrationError(f"station {sid}: time synchronisation needs the odometer "
                                         f"(or give sensors.total_stations.stations.{sid}.clock_offset_s)")
-            sync = timesync.synchronise(sid, d.t_s, pos_n, odometer.t_s, odometer.distance_m, fs.time_sync)
+            sync = timesync.synchronise(sid, d.t_s[ok], pos_n[ok], odometer.t_s, odometer.distance_m, fs.time_sync)
             offset = sync.offset_s
         t_station = d.t_s
         if odometer is not None:  # issue 8: steps of the station's clock (clock_jumps.py)
             t_station, jumps = correct_station_clock_jumps(sid, d.t_s, offset, pos_n, cov_n, odometer.t_s,
-                                                           odometer.distance_m)
+                                                           odometer.distance_m, excluded=flagged)
             if jumps and sync is not None:  # the correlation again, on the corrected stamps
-                sync = timesync.synchronise(sid, t_station, pos_n, odometer.t_s, odometer.distance_m, fs.time_sync)
+                sync = timesync.synchronise(sid, t_station[ok], pos_n[ok], odometer.t_s, odometer.distance_m,
+                                            fs.time_sync)
                 offset = sync.offset_s
             clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
+        if odometer is not None:  # issue 8: a reflector that does not move with the trolley
+            still, more = motionless_mislocks(t_station - offset, pos_n, unpaired, odometer.t_s, odometer.distance_m)
+            flagged, mislocks = flagged | still, sorted(mislocks + more, key=lambda m: m["first"])
+        step_mislocks += [{"station": sid, "start_s": float(t_station[m["first"]] - offset),
+                           "end_s": float(t_station[m["last"]] - offset), **m} for m in mislocks]
         centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
-        stations[sid] = StationPrep(setup, centre, t_station - offset, pos_n, cov_n, offset, sync, res)
+        stations[sid] = StationPrep(setup, centre, t_station - offset, pos_n, cov_n, offset, sync, res,
+                                    flagged=flagged)
     if fs.registration == "seed":
         _apply_seed_registration(stations, odometer)
-    return PrismSurvey(stations, _readings(stations, cfg, fs), {"clock_jumps": clock_jumps})
+    return PrismSurvey(stations, _readings(stations, cfg, fs),
+                       {"clock_jumps": clock_jumps, "step_mislocks": step_mislocks})
 
 
 def _apply_seed_registration(stations: dict[str, StationPrep], odometer: OdometerData | None) -> None:
@@ -133,13 +148,16 @@ def _readings(stations: dict[str, StationPrep], cfg, fs) -> PrismReadings:
     station = np.concatenate([np.full(stations[s].t_s.size, j) for j, s in enumerate(ids)])[order]
     pos = np.concatenate([stations[s].pos_n for s in ids])[order]
     cov = np.concatenate([stations[s].cov_n for s in ids])[order]
+    flagged = np.concatenate([stations[s].flagged if stations[s].flagged is not None
+                              else np.zeros(stations[s].t_s.size, bool) for s in ids])[order]
     free = fs.registration == "graph"
     rot = np.array([cfg.tilt_sigma_arcsec, cfg.tilt_sigma_arcsec, cfg.orientation_sigma_arcsec]) * ARCSEC
     fixed = 1e-9
     sigma = np.r_[rot if free else [fixed] * 3, [cfg.position_sigma_mm * 1e-3 if free else fixed] * 3,
                   fs.clock_offset_sigma_s, cfg.clock_drift_sigma_ppm if fs.estimate_clock_drift else 1e-6]
     return PrismReadings(t[order], pos, cov, station, ids, np.array([stations[s].centre_n for s in ids]),
-                         np.asarray(cfg.prism_lever_arm_b_m, dtype=float), np.tile(sigma, (len(ids), 1)))
+                         np.asarray(cfg.prism_lever_arm_b_m, dtype=float), np.tile(sigma, (len(ids), 1)),
+                         flagged if flagged.any() else None)
 
 
 # --- after the fusion -------------------------------------------------------------------------

@@ -218,6 +218,7 @@ def inject_prism_mislock(log: SensorLog, *, strength: float = 10.0, station: str
     ts, sel, start = _station_window(log, station, start_s, strength)
     hz, zen, dist = ts.horizontal_angle_rad.copy(), ts.zenith_angle_rad.copy(), ts.slope_distance_m.copy()
     idx = np.flatnonzero(sel)
+    turn = offset_m / (dist[idx] * np.sin(zen[idx]))      # from the noise-free reading: no leak of the noise
     if not moving:
         rng = np.random.default_rng(seed)
         spec = TotalStationSpec.model_fields
@@ -226,7 +227,7 @@ def inject_prism_mislock(log: SensorLog, *, strength: float = 10.0, station: str
         hz[idx] = hz[idx[0]] + rng.standard_normal(k) * sig_a
         zen[idx] = zen[idx[0]] + rng.standard_normal(k) * sig_a
         dist[idx] = dist[idx[0]] + rng.standard_normal(k) * spec["distance_sigma_mm"].default * 1e-3
-    hz[idx] = np.mod(hz[idx] + offset_m / (dist[idx] * np.sin(zen[idx])), 2 * np.pi)
+    hz[idx] = np.mod(hz[idx] + (turn[0] if not moving else turn), 2 * np.pi)
     new = replace(ts, horizontal_angle_rad=hz, zenith_angle_rad=zen, slope_distance_m=dist)
     return _with_stream(log, f"/total_station/{station}", new), {
         "fault": "prism_mislock", "station": station, "start_s": start, "end_s": start + strength,
@@ -308,6 +309,15 @@ INJECTORS: dict[str, Injector] = {
                                          (0.0,), "s inside the motion", "missing_static_period"),
 }
 
+def _station_jump_in_gap(log: SensorLog, *, strength: float, station: str = "TS01") -> tuple[SensorLog, dict]:
+    """``station`` loses the prism for 10 s from 50 s after its first reading, and its clock
+    jumps by ``strength`` [s] in the middle of that gap (no reading sees the step)."""
+    t0 = float(_stream(log, f"/total_station/{station}").t_s[0])
+    gapped, gap = inject_prism_gap(log, strength=10.0, station=station, start_s=t0 + 50.0)
+    out, info = inject_clock_jump(gapped, strength=strength, topic=f"/total_station/{station}", at_s=t0 + 55.0)
+    return out, {**info, "gap": gap}
+
+
 #: total-station faults ``benchmarks/faults.py`` injects into a short bridge survey (TS01), by name
 TS_INJECTORS: dict[str, Injector] = {
     "prism_mislock": Injector(inject_prism_mislock, (2.0, 10.0, 30.0), "s (static reflector 8 m aside)",
@@ -319,4 +329,9 @@ TS_INJECTORS: dict[str, Injector] = {
     "station_clock_jump": Injector(lambda log, *, strength: inject_clock_jump(log, strength=strength,
                                                                               topic="/total_station/TS01"),
                                    (0.02, 0.05, 0.2), "s", "clock_jumps"),
+    "station_clock_jump_small": Injector(lambda log, *, strength: inject_clock_jump(log, strength=strength,
+                                                                                    topic="/total_station/TS01"),
+                                         (0.003, 0.005), "s (below the detection)", "clock_jumps"),
+    "station_clock_jump_in_gap": Injector(_station_jump_in_gap, (0.05,), "s (inside a 10 s tracking gap)",
+                                          "clock_jumps"),
 }
