@@ -109,3 +109,58 @@ def nhc_sigma_mps(rail: dict[str, float], gyro: dict[str, float] | None = None) 
     """
     gyro = gyro or {"lateral": 0.0, "vertical": 0.0}
     return float(max(np.hypot(rail[a], gyro[a]) for a in ("lateral", "vertical")))
+
+
+def _rail_psd(axis: str, omega_radpm: np.ndarray, spectrum: str, components: tuple[str, ...] | None) -> np.ndarray:
+    """One-sided PSD [m^2/(rad/m)] of the reference rail's ``axis`` irregularity."""
+    return sum(f * german_psd(c, omega_radpm, spectrum) for c, f in _RAIL_COMPONENTS[axis]
+               if components is None or c in components)
+
+
+def equivalent_white_sigma_mps(freq_hz, axis: str, speed_mps: float, wheelbase_m: float, keyframe_dt_s: float,
+                               spectrum: str = "german_low", wavelength_min_m: float = 1.0,
+                               wavelength_max_m: float = 200.0, scale: float = 1.0,
+                               components: tuple[str, ...] | None = None) -> np.ndarray:
+    """Sigma [m/s] of keyframe-spaced white NHC noise whose PSD equals the violation's at ``freq_hz``.
+
+    The violation's one-sided PSD in time is ``P(f) = v^2 S(Omega) H(Omega)^2 2 pi / v`` with
+    ``Omega = 2 pi f / v``; white samples of sigma ``s`` every ``dt`` have ``2 s^2 dt``. Zero
+    outside the irregularity band. Returns an array of the shape of ``freq_hz``.
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    omega = 2 * np.pi * f / speed_mps
+    band = (omega >= 2 * np.pi / wavelength_max_m) & (omega <= 2 * np.pi / wavelength_min_m)
+    psd = np.where(band, _rail_psd(axis, omega, spectrum, components), 0.0) * scale**2
+    p_time = speed_mps**2 * psd * rigid_trolley_transfer(omega, wheelbase_m) ** 2 * 2 * np.pi / speed_mps
+    return np.sqrt(p_time / (2.0 * keyframe_dt_s))
+
+
+def informed_band_sigma_mps(axis: str, speed_mps: float, wheelbase_m: float, keyframe_dt_s: float,
+                            accel_vrw_mps_per_sqrt_h: float, **psd) -> dict[str, float]:
+    """White-noise NHC sigma [m/s] honest in the band where the NHC, not the IMU, sets the velocity.
+
+    Between keyframes the IMU's velocity error is a random walk: one-sided PSD
+    ``2 q / (2 pi f)^2`` with ``q = VRW^2``. A white NHC of sigma ``s`` every ``dt`` (PSD
+    ``2 s^2 dt``) outweighs it below ``f_c(s) = sqrt(q / (s^2 dt)) / (2 pi)``; above, the IMU
+    decides and the NHC's noise model hardly matters. So ``s`` must cover the violation's
+    equivalent white sigma (:func:`equivalent_white_sigma_mps`) at every ``f <= f_c(s)``: the
+    smallest such ``s`` (a unique fixed point: the bound falls as ``s`` grows), found by
+    bisection. ``psd``: the spectrum arguments of :func:`equivalent_white_sigma_mps`.
+    Returns ``{"sigma_mps", "crossover_hz", "crossover_wavelength_m"}``.
+    """
+    q = (accel_vrw_mps_per_sqrt_h / 60.0) ** 2
+    f_grid = np.geomspace(1e-4, 0.5 / keyframe_dt_s, 4000)
+    sig_eq = equivalent_white_sigma_mps(f_grid, axis, speed_mps, wheelbase_m, keyframe_dt_s, **psd)
+    running_max = np.maximum.accumulate(sig_eq)
+
+    def bound(s: float) -> float:
+        f_c = np.sqrt(q / (s * s * keyframe_dt_s)) / (2 * np.pi)
+        i = np.searchsorted(f_grid, f_c, side="right") - 1
+        return float(running_max[i]) if i >= 0 else 0.0
+
+    lo, hi = 1e-9, max(float(sig_eq.max()), 1e-8)
+    for _ in range(100):
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if mid < bound(mid) else (lo, mid)
+    f_c = float(np.sqrt(q / (hi * hi * keyframe_dt_s)) / (2 * np.pi))
+    return {"sigma_mps": hi, "crossover_hz": f_c, "crossover_wavelength_m": speed_mps / f_c}
