@@ -14,7 +14,8 @@ honest (chi-square with ``n_eff`` degrees of freedom), and pools several runs (s
 figure with its own interval. For a Gaussian stationary ``z`` with autocorrelation ``rho``,
 ``var(mean z^2) = 2 / N * sum_k rho(k)^2``, hence ``n_eff = N / (1 + 2 sum_{k>=1} rho(k)^2)``;
 ``rho`` is estimated under the hypothesis tested (zero mean, no mean removed), summed up to the
-first lag where it falls below 0.05 (Sokal-style window), and ``n_eff`` is at least 1.
+first lag where it falls below 0.05 (a window, as in Sokal's estimator of the integrated
+autocorrelation time), and ``n_eff`` is at least 1.
 """
 
 from __future__ import annotations
@@ -24,12 +25,13 @@ from scipy import fft, stats
 
 
 def autocorrelation(z: np.ndarray) -> np.ndarray:
-    """Autocorrelation (N,) of ``z`` (N,) about zero (not mean-removed): ``sum z_i z_{i+k} / sum z_i^2``."""
+    """Autocorrelation (N,) of ``z`` (N,) about zero (not mean-removed), each lag ``k`` averaged over
+    its ``N - k`` pairs: ``mean(z_i z_{i+k}) / mean(z_i^2)`` (a constant series gives 1 at every lag)."""
     z = np.asarray(z, dtype=float)
     n = z.size
     m = fft.next_fast_len(2 * n, real=True)
     spec = fft.rfft(z, m)
-    acov = fft.irfft(spec * np.conj(spec), m)[:n]
+    acov = fft.irfft(spec * np.conj(spec), m)[:n] / (n - np.arange(n))
     return acov / acov[0] if acov[0] > 0 else np.zeros(n)
 
 
