@@ -6,7 +6,9 @@ Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
    full pipeline with the correlated GNSS errors switched off (white fixes), and the full
    pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch). Relative
    accuracy at L = 5 m (MSE sigma1 and ADEV, vertical and lateral), absolute RMS, and the
-   consistency RMS(error / sigma) per n axis; mean and worst over the seeds.
+   consistency RMS(error / sigma) per n axis; mean and worst over the seeds, and the consistency
+   pooled over the seeds with its 95 % interval for honest sigmas (one run of the GNSS's
+   correlated error holds only a few independent samples: evaluation/consistency.py).
 2. ``curved-line`` with its 60 s GNSS outage: the largest position error inside the outage.
 Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes benchmarks/results/accuracy.json.
 Targets (issue 4): vertical MSE <= 0.15 mm, ADEV <= 0.07 mm; lateral MSE <= 0.25, ADEV <= 0.12 mm;
@@ -65,8 +67,18 @@ def figures(metrics: dict) -> dict:
         **{f"{c}_{k}_mm": ra[c][f"{k}_at_threshold_mm"] for c in ("vertical", "lateral") for k in ("mse", "adev")},
         **{f"{c}_abs_rms_mm": metrics["absolute_error"][c]["rms_mm"] for c in ("along", "lateral", "vertical")},
         **{f"consistency_{a}": v for a, v in metrics["consistency_rms_error_over_sigma"].items()},
+        **{f"consistency_{a}_n_eff": v["n_eff"] for a, v in metrics["consistency"].items()},
+        **{f"consistency_{a}_samples": v["samples"] for a, v in metrics["consistency"].items()},
         "run_time_s": metrics["run_time_s"], "rejected_gnss": len(metrics["rejected_gnss"]),
     }
+
+
+def pooled_consistency(rows: list[dict]) -> dict:
+    """RMS(error / sigma) per axis pooled over the seeds' runs, with its 95 % interval for honest
+    sigmas (evaluation/consistency.py: one run of a correlated error holds few independent samples)."""
+    from trackfusion.evaluation.consistency import pooled
+    return {a: pooled([{"rms": r[f"consistency_{a}"], "n_eff": r[f"consistency_{a}_n_eff"],
+                        "samples": r[f"consistency_{a}_samples"]} for r in rows]) for a in "enu"}
 
 
 def outage_drift(seed: int) -> dict:
@@ -107,6 +119,7 @@ def main() -> None:
         keys = [k for k in rs[0] if k != "seed"]
         summary[label] = {k: {"mean": float(np.mean([r[k] for r in rs])), "worst": float(np.max([r[k] for r in rs]))}
                           for k in keys}
+        summary[label]["consistency_pooled"] = pooled_consistency(rs)
     outage = outage_drift(args.seeds[0])
     print()
     print(f"open-track-gnss, L = 5 m, mean (worst) over seeds {args.seeds} [mm]")
@@ -116,6 +129,10 @@ def main() -> None:
                         for k in ("vertical_mse_mm", "vertical_adev_mm", "lateral_mse_mm", "lateral_adev_mm"))
         print(f"{label:<20}{cells}{s['vertical_abs_rms_mm']['mean']:>8.1f}/{s['lateral_abs_rms_mm']['mean']:.1f}"
               f"   {s['consistency_e']['mean']:.2f}/{s['consistency_n']['mean']:.2f}/{s['consistency_u']['mean']:.2f}")
+    print(f"consistency RMS(error/sigma) pooled over seeds {args.seeds}, e / n / u [95 % interval for honest sigmas]")
+    for label, s in summary.items():
+        print(f"{label:<20}" + "  ".join(f"{a} {c['rms']:.2f} [{c['interval_95'][0]:.2f}, {c['interval_95'][1]:.2f}]"
+                                         for a, c in s["consistency_pooled"].items()))
     print(f"targets: vertical {TARGETS['vertical']}, lateral {TARGETS['lateral']} (MSE, ADEV); "
           f"seed 002 field: vertical {SEED_002['vertical']}, lateral {SEED_002['lateral']}")
     for o in outage["outages"]:

@@ -48,9 +48,22 @@ class ZuptSettings(_Factor):
 
 class NhcSettings(_Factor):
     """Zero lateral and vertical velocity (in ``v``) of the point midway between the
-    reference-rail wheel contacts (the trolley frame's origin)."""
+    reference-rail wheel contacts (the trolley frame's origin).
+
+    ``sigma_mm_per_s`` holds for both axes unless ``sigma_lateral_mm_per_s`` /
+    ``sigma_vertical_mm_per_s`` are given; docs/pipeline.md ("Choosing the NHC sigma") derives
+    them from the trolley's wheelbase, speed and the track's irregularity (track/nhc_noise.py).
+    """
 
     sigma_mm_per_s: float = Field(1.0, gt=0)
+    sigma_lateral_mm_per_s: float | None = Field(None, gt=0)
+    sigma_vertical_mm_per_s: float | None = Field(None, gt=0)
+
+    def sigmas_mps(self) -> np.ndarray:
+        """(lateral, vertical) sigma [m/s], shape (2,): the rows of the NHC residual."""
+        lateral = self.sigma_lateral_mm_per_s or self.sigma_mm_per_s
+        vertical = self.sigma_vertical_mm_per_s or self.sigma_mm_per_s
+        return np.array([lateral, vertical]) * 1e-3
 
 
 class OdometerFactorSettings(_Factor):

@@ -426,7 +426,7 @@ class _Builder:
         omega_ie_n = geodesy.earth_rate_n(self.pb.origin)
         lever = tr.nhc_lever_arm_b
         keys_x, keys_v = X(0) + np.arange(K), V(0) + np.arange(K)
-        sigma = np.full((K, 2), st.sigma_mm_per_s * 1e-3)
+        sigma = np.tile(st.sigmas_mps(), (K, 1))  # (lateral, vertical) rows
 
         def build(state: _State) -> fx.LinearBlocks:
             w_nb_b = w_ib_b - np.einsum("kji,j->ki", state.R, omega_ie_n)

@@ -31,6 +31,7 @@ from ..track.irregularity import IrregularitySpec, synthesize
 from ..track.rails import TrackModel
 from .config import ScenarioConfig, load_scenario
 from .motion import Hold, MotionProfile, Move, compile_plan
+from .nhc_sigma import nhc_sigmas_mm_per_s
 from .trolley import TrolleyGeometry, TrolleyKinematics
 
 #: Random streams, in a fixed order (append new ones at the end to keep old seeds' draws).
@@ -325,12 +326,17 @@ class SimulationReport:
 
 def pipeline_for(sim: Simulation) -> dict[str, Any]:
     """The pipeline a simulated run should be processed with (paths relative to its folder;
-    schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md)."""
+    schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md). The NHC sigmas are
+    what the rigid simulated trolley really does on its rails (:mod:`.nhc_sigma`)."""
     cfg = sim.config
-    factors = {"imu": True, "zupt": True, "nhc": True, "odometer": cfg.odometer is not None,
+    imu_spec = _imu_spec(cfg.imu)
+    nhc = nhc_sigmas_mm_per_s(cfg, sim.motion.chainage_range_m, imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.rate_hz)
+    factors = {"imu": True, "zupt": True,
+               "nhc": {f"sigma_{axis}_mm_per_s": float(f"{max(sigma, 1e-3):.3g}") for axis, sigma in nhc.items()},
+               "odometer": cfg.odometer is not None,
                "gnss": cfg.gnss is not None, "inclinometer": cfg.inclinometer is not None,
                "total_stations": cfg.total_stations is not None}
-    sensors: dict[str, Any] = {"imu": _imu_spec(cfg.imu).model_dump()}
+    sensors: dict[str, Any] = {"imu": imu_spec.model_dump()}
     arms = sim.truth_info["lever_arms_b_m"]
     if cfg.odometer is not None:
         sensors["odometer"] = {"clock_offset_s": 0.0}
