@@ -113,7 +113,9 @@ class PrismReadings:
     of each station's rotation); lever_arm_b (3,) [m] IMU origin to the prism centre;
     prior_sigma (J,8) standard deviations of each station's correction state
     (fusion/factors.py ``STATION_STATE_DIM``: rotation [rad] (3, in ``n``), translation [m] (3),
-    clock offset [s], clock drift [ppm]) about zero.
+    clock offset [s], clock drift [ppm]) about zero; fixed_states (J,8) or None: when given, the
+    stations are held at these corrections (no station states in the graph: a chain, as fast as
+    a GNSS run; registration/two_stage.py estimates them first), see :attr:`stations_fixed`.
     """
 
     t_s: np.ndarray
@@ -124,3 +126,9 @@ class PrismReadings:
     station_pos_n: np.ndarray
     lever_arm_b: np.ndarray
     prior_sigma: np.ndarray
+    fixed_states: np.ndarray | None = None
+
+    @property
+    def stations_fixed(self) -> bool:
+        """True when the station corrections are held at ``fixed_states`` (not estimated)."""
+        return self.fixed_states is not None
