@@ -33,7 +33,8 @@ SHORT = ["motion.segments=[{hold_s: 30}, {move_to_m: 400, speed_mps: 1.5, accel_
          " {move_to_m: 120, speed_mps: 1.5, accel_mps2: 0.3}, {hold_s: 30}]",
          "total_stations.handover.1.at_chainage_m=300", "total_stations.handover.2.at_chainage_m=250",
          "total_stations.stations.1.pos_n_m=[-426.0, -6.0, 1.8]",
-         "total_stations.stations.0.tilt_arcsec=[1.0, 3.0]", "total_stations.stations.1.tilt_arcsec=[-1.0, -2.5]"]
+         "total_stations.stations.0.tilt_arcsec=[1.0, 3.0]", "total_stations.stations.1.tilt_arcsec=[-1.0, -2.5]",
+         "total_stations.stations.0.clock_offset_s=2.3", "total_stations.stations.1.clock_offset_s=1.1"]
 LOW_NOISE = {"angle_sigma_arcsec": 0.05, "distance_sigma_mm": 0.3, "distance_ppm": 0.1}
 
 
@@ -72,9 +73,11 @@ def test_two_stage_recovers_injected_station_corrections(low_noise):
     est = station_estimates(survey, res.station_states, prob.origin, res.station_cov)
     for sid, e in est.items():
         tr = truth[sid]
-        # the tilt about north (seen along the east-west bridge); about east it is a height shift
-        assert e["tilt_arcsec"][1] == pytest.approx(tr["tilt_arcsec"][1], abs=0.15)
-        assert e["sigma"]["tilt_arcsec"][1] < 0.1
+        # the tilt about north (seen along the east-west bridge; about east it is a height
+        # shift). Even with readings this good its sigma stays near 0.7": the trajectory's own
+        # height ramp (the IMU's level) trades with it (docs/total_stations.md)
+        err, sigma = e["tilt_arcsec"][1] - tr["tilt_arcsec"][1], e["sigma"]["tilt_arcsec"][1]
+        assert sigma < 1.0 and abs(err) < 2.0 * sigma and abs(err) < 0.5 * abs(tr["tilt_arcsec"][1])
         t = np.array(tr["tracking_intervals_s"]).ravel()
         clock_err = (e["clock_offset_s"] - tr["clock_offset_s"]) + 1e-6 * (e["clock_drift_ppm"]
                                                                             - tr["clock_drift_ppm"]) * t
