@@ -101,7 +101,6 @@ def test_fixed_station_solve_matches_the_joint_solve(noisy):
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
 
 
-@pytest.mark.slow
 def _consistency(res, ref) -> np.ndarray:
     """RMS of error / sigma per n axis (3,) at the sigma times."""
     i = np.searchsorted(res.t_s, res.sigma_t_s)
