@@ -50,7 +50,7 @@ def simulated(seed: int) -> Path:
 OUT_ROOT: Path | None = None
 
 
-def run(sim: Path, registration: str, solve: str = "two_stage"):
+def run(sim: Path, registration: str, solve: str = "joint"):
     from trackfusion.pipeline import parse_pipeline, run as run_pipeline
     data = yaml.safe_load((sim / "pipeline.yaml").read_text())
     data["factors"]["total_stations"] = {"enabled": True, "registration": registration, "solve": solve}
@@ -133,7 +133,7 @@ def run_variants(seed: int) -> dict:
     truth = json.loads((sim / "truth.json").read_text())
     variants = {"seed": seed}
     for reg in ("seed", "none"):
-        f = figures(run(sim, reg, "two_stage").metrics, truth)
+        f = figures(run(sim, reg).metrics, truth)
         variants[reg] = {"figures": f, "checks": checks(f)}
         print(f"seed {seed}, registration {reg}: " + ", ".join(f"{k} {v:.3g}" for k, v in variants[reg]["checks"].items()))
     return variants
@@ -143,7 +143,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--variants", action="store_true")
-    ap.add_argument("--solve", choices=["two_stage", "joint"], default="two_stage",
+    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
                     help="factors.total_stations.solve of the main runs (registration/two_stage.py)")
     ap.add_argument("--out-root", type=Path, default=None,
                     help="write the runs' outputs under this folder (default: beside the cached simulations)")

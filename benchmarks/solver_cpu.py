@@ -23,7 +23,7 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
 
 
-def problem(scenario: str, passes: int, solve: str = "two_stage", seed: int = 1):
+def problem(scenario: str, passes: int, solve: str = "joint", seed: int = 1):
     """The fusion problem of the cached simulation, as ``trackfusion run`` builds it."""
     from trackfusion import pipeline as P
     if scenario == "bridge":
@@ -48,7 +48,7 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=4)
     ap.add_argument("--scenario", choices=["open-track", "bridge"], default="open-track")
     ap.add_argument("--out", type=Path, default=None, help="JSON result file (default: results/solver_cpu[_bridge].json)")
-    ap.add_argument("--solve", choices=["two_stage", "joint"], default="two_stage",
+    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
                     help="bridge: factors.total_stations.solve (registration/two_stage.py)")
     ap.add_argument("--seed", type=int, default=1, help="bridge: the seed of benchmarks/bridge.py")
     args = ap.parse_args()

@@ -393,7 +393,7 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
 
 
 def _smooth_batch(problem: FusionProblem, say: Callable[[str], None]) -> SmootherResult:
-    """One batch: total-station runs in two stages unless ``factors.total_stations.solve: joint``
+    """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
     (registration/two_stage.py), anything else by :func:`smooth`."""
     from .registration.two_stage import smooth_two_stage, uses_two_stage
     return smooth_two_stage(problem, progress=say) if uses_two_stage(problem) else smooth(problem, say)
