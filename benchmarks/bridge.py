@@ -34,7 +34,7 @@ import yaml
 
 RESULTS = Path(__file__).resolve().parent / "results" / "bridge.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
-TARGETS = {"clock_ms": 2.0, "tilt_arcsec": 0.5, "round_trip_std_mm": 0.5, "round_trip_max_mm": 2.0,
+TARGETS = {"clock_ms": 2.0, "tilt_north_axis_arcsec": 0.5, "round_trip_std_mm": 0.5, "round_trip_max_mm": 2.0,
            "absolute_rms_mm": 1.5, "run_s": 60.0}
 
 
@@ -46,11 +46,24 @@ def simulated(seed: int) -> Path:
     return out
 
 
-def run(sim: Path, registration: str):
+#: where the runs write their outputs (``--out-root``; default: beside each cached simulation)
+OUT_ROOT: Path | None = None
+
+
+def run(sim: Path, registration: str, solve: str = "joint"):
     from trackfusion.pipeline import parse_pipeline, run as run_pipeline
     data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-    data["factors"]["total_stations"] = {"enabled": True, "registration": registration}
-    return run_pipeline(parse_pipeline(data, str(sim / "pipeline.yaml"), sim), sim / f"out-{registration}")
+    data["factors"]["total_stations"] = {"enabled": True, "registration": registration, "solve": solve}
+    out = (OUT_ROOT / sim.name if OUT_ROOT is not None else sim) / f"out-{registration}-{solve}"
+    return run_pipeline(parse_pipeline(data, str(sim / "pipeline.yaml"), sim), out)
+
+
+def clock_error_in_tracking_ms(offset_s: float, drift_ppm: float, truth: dict) -> float:
+    """Largest |clock error| [ms] over the station's tracking intervals (IMU time): the offset at
+    IMU time 0 extrapolates the drift outside them (TS02 tracks from about 1000 s on)."""
+    t = np.array(truth["tracking_intervals_s"], dtype=float).ravel()
+    err = (offset_s - truth["clock_offset_s"]) + 1e-6 * (drift_ppm - truth["clock_drift_ppm"]) * t
+    return float(1e3 * np.max(np.abs(err)))
 
 
 def figures(metrics: dict, truth: dict) -> dict:
@@ -58,8 +71,14 @@ def figures(metrics: dict, truth: dict) -> dict:
     for sid, tr in truth["total_stations"].items():
         sync = metrics["time_sync"][sid]
         est = metrics["registration"]["stations"][sid]
+        sigma = est.get("sigma", {})
         out["stations"][sid] = {
             "clock_error_ms": 1e3 * (sync["offset_s"] - tr["clock_offset_s"]),
+            "clock_error_in_tracking_ms": clock_error_in_tracking_ms(sync["offset_s"], sync["drift_ppm"], tr),
+            "clock_offset_sigma_ms": sigma.get("clock_offset_ms"),
+            "tilt_sigma_arcsec": sigma.get("tilt_arcsec"),
+            "tilt_vector_error_arcsec": float(np.hypot(est["tilt_arcsec"][0] - tr["tilt_arcsec"][0],
+                                                       est["tilt_arcsec"][1] - tr["tilt_arcsec"][1])),
             "clock_error_correlation_only_ms": 1e3 * (sync["offset_correlation_s"] - tr["clock_offset_s"]),
             "drift_error_ppm": sync["drift_ppm"] - tr["clock_drift_ppm"], "r_max": sync["r_max"],
             "tilt_north_axis_error_arcsec": est["tilt_arcsec"][1] - tr["tilt_arcsec"][1],
@@ -76,6 +95,7 @@ def figures(metrics: dict, truth: dict) -> dict:
                                                                   "relative_accuracy_ppm")}
                                     for c in ("elevation", "across_track")}
                                 for m in ("before", "seed_003", "factor_graph") if m in pair}
+    out["consistency_rms_error_over_sigma"] = metrics.get("consistency_rms_error_over_sigma")
     out["rejected_prism"] = len(metrics["rejected_prism"])
     out["run_s"] = metrics["timings_s"]["total_s"]
     out["timings_s"] = metrics["timings_s"]
@@ -87,11 +107,24 @@ def checks(f: dict) -> dict:
     rt = f["round_trip"]["after_fusion"]
     return {
         "clock_ms": max(abs(s["clock_error_ms"]) for s in st),
-        "tilt_arcsec": max(abs(s["tilt_north_axis_error_arcsec"]) for s in st),
+        # the component seen on this east-west bridge; the one about the east axis (the line of
+        # sight) is a vertical shift of the whole line, equal to the station's height offset,
+        # and keeps its prior: reported as tilt_vector_arcsec, not targeted (docs/total_stations.md)
+        "tilt_north_axis_arcsec": max(abs(s["tilt_north_axis_error_arcsec"]) for s in st),
         "round_trip_std_mm": max(rt[c]["std_mm"] for c in rt),
         "round_trip_max_mm": max(abs(rt[c]["max_abs_signed_mm"]) for c in rt),
         "absolute_rms_mm": max(f["absolute_rms_mm"]["vertical"], f["absolute_rms_mm"]["lateral"]),
         "run_s": f["run_s"]}
+
+
+def reported(f: dict) -> dict:
+    """Figures printed beside the targets, with no target of their own."""
+    st = f["stations"].values()
+    return {"clock_in_tracking_ms": max(s["clock_error_in_tracking_ms"] for s in st),
+            "tilt_vector_arcsec": max(s["tilt_vector_error_arcsec"] for s in st),
+            "tilt_north_sigma_arcsec": max((s["tilt_sigma_arcsec"] or [0, 0])[1] for s in st),
+            "estimation_core_s": sum(f["timings_s"].get(k, 0.0) for k in
+                                     ("stations_s", "preintegrate_s", "build_s", "solve_s", "marginals_s"))}
 
 
 def run_variants(seed: int) -> dict:
@@ -110,9 +143,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--variants", action="store_true")
+    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
+                    help="factors.total_stations.solve of the main runs (registration/two_stage.py)")
+    ap.add_argument("--out-root", type=Path, default=None,
+                    help="write the runs' outputs under this folder (default: beside the cached simulations)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="JSON result file")
     ap.add_argument("--variants-only", action="store_true",
                     help="run only the variants (first seed) and add them to an existing results file")
     args = ap.parse_args()
+    global OUT_ROOT
+    OUT_ROOT = args.out_root
     if args.variants_only:
         result = json.loads(RESULTS.read_text())
         result["variants"] = run_variants(args.seeds[0])
@@ -123,30 +163,32 @@ def main() -> None:
     for seed in args.seeds:
         sim = simulated(seed)
         truth = json.loads((sim / "truth.json").read_text())
-        f = figures(run(sim, "graph").metrics, truth)
+        f = figures(run(sim, "graph", args.solve).metrics, truth)
         c = checks(f)
-        per_seed[seed] = {"figures": f, "checks": c}
+        per_seed[seed] = {"figures": f, "checks": c, "reported": reported(f)}
         worst = {k: max(worst[k], c[k]) for k in TARGETS}
         print(f"seed {seed}: " + ", ".join(f"{k} {v:.3g} (target {TARGETS[k]:g})" for k, v in c.items()))
+        print(f"  also: " + ", ".join(f"{k} {v:.3g}" for k, v in per_seed[seed]["reported"].items())
+              + f", consistency e/n/u {f['consistency_rms_error_over_sigma']}")
         for sid, s in f["stations"].items():
             print(f"  {sid}: clock {s['clock_error_ms']:+.2f} ms (correlation only {s['clock_error_correlation_only_ms']:+.2f}),"
                   f" r_max {s['r_max']:.3f}, tilt N-axis {s['tilt_north_axis_error_arcsec']:+.2f}\","
-                  f" E-axis {s['tilt_east_axis_error_arcsec']:+.2f}\" (not observable),"
+                  f" (sigma {(s['tilt_sigma_arcsec'] or [0, 0])[1]:.2f}), E-axis {s['tilt_east_axis_error_arcsec']:+.2f}\" (not observable),"
                   f" orientation {s['orientation_error_arcsec']:+.2f}\"")
         for m, tab in f["overlap_TS01_TS02"].items():
             print(f"  overlap {m:>12}: " + "; ".join(
                 f"{c} max {v['max_abs_mm']:.2f} mean {v['mean_mm']:+.2f} std {v['std_mm']:.2f} mm, "
                 f"slope {v['slope_mm_per_m']:+.2e} mm/m, {v['relative_accuracy_ppm']:.1f} ppm" for c, v in tab.items()))
     variants = run_variants(args.seeds[0]) if args.variants else {}
-    result = {"benchmark": "bridge", "targets": TARGETS, "worst": worst,
+    result = {"benchmark": "bridge", "solve": args.solve, "targets": TARGETS, "worst": worst,
               "met": {k: worst[k] <= TARGETS[k] for k in TARGETS}, "seeds": per_seed, "variants": variants,
               "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()),
               "note": "wall times measured on a machine shared with other jobs"}
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=1, default=float) + "\n")
+    args.results.parent.mkdir(parents=True, exist_ok=True)
+    args.results.write_text(json.dumps(result, indent=1, default=float) + "\n")
     print("worst over seeds: " + ", ".join(f"{k} {v:.3g} ({'met' if v <= TARGETS[k] else 'NOT met'})"
                                              for k, v in worst.items()))
-    print(f"wrote {RESULTS}")
+    print(f"wrote {args.results}")
 
 
 if __name__ == "__main__":

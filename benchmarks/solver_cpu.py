@@ -8,6 +8,7 @@ tree on the same machine). Reads the log and builds the problem as ``trackfusion
 (not timed), then smooths it with every stage timed in CPU seconds. ``open-track``: the
 simulation of benchmarks/speed.py (``--passes`` round trips, 4: 57 min); ``bridge``: seed 1
 of benchmarks/bridge.py (53 min). Writes benchmarks/results/solver_cpu.json (solver_cpu_bridge.json).
+Bridge: ``--solve`` two_stage (default) or joint, ``--seed``.
 Target (issue 4): the estimation core's share of the 60 s hour, about 25 s on a quiet machine.
 """
 
@@ -22,12 +23,12 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
 
 
-def problem(scenario: str, passes: int):
+def problem(scenario: str, passes: int, solve: str = "joint", seed: int = 1):
     """The fusion problem of the cached simulation, as ``trackfusion run`` builds it."""
     from trackfusion import pipeline as P
     if scenario == "bridge":
         from bridge import simulated as bridge_simulated
-        sim = bridge_simulated(1)
+        sim = bridge_simulated(seed)
     else:
         from speed import simulated
         sim = simulated(passes)
@@ -35,7 +36,7 @@ def problem(scenario: str, passes: int):
     if scenario == "bridge":  # as benchmarks/bridge.py runs it
         import yaml
         data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-        data["factors"]["total_stations"] = {"enabled": True, "registration": "graph"}
+        data["factors"]["total_stations"] = {"enabled": True, "registration": "graph", "solve": solve}
         pl = P.parse_pipeline(data, str(sim / "pipeline.yaml"), sim)
     log, _ = P._read(pl)
     prob, _ = P.build_problem(pl, log, lambda _m: None)
@@ -47,14 +48,18 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=4)
     ap.add_argument("--scenario", choices=["open-track", "bridge"], default="open-track")
     ap.add_argument("--out", type=Path, default=None, help="JSON result file (default: results/solver_cpu[_bridge].json)")
+    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
+                    help="bridge: factors.total_stations.solve (registration/two_stage.py)")
+    ap.add_argument("--seed", type=int, default=1, help="bridge: the seed of benchmarks/bridge.py")
     args = ap.parse_args()
-    prob = problem(args.scenario, args.passes)
+    prob = problem(args.scenario, args.passes, args.solve, args.seed)
     from trackfusion.fusion import smoother
+    from trackfusion.registration.two_stage import smooth_two_stage, uses_two_stage
     wall, cpu = time.perf_counter(), time.process_time()
     real_clock = time.perf_counter
     time.perf_counter = time.process_time  # the smoother's own stage timings, in CPU seconds
     try:
-        res = smoother.smooth(prob)
+        res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
     finally:
         time.perf_counter = real_clock
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -63,6 +68,7 @@ def main() -> None:
         "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                  cwd=Path(__file__).parent).stdout.strip(),
         "date": time.strftime("%Y-%m-%d %H:%M"), "scenario": args.scenario,
+        **({"seed": args.seed, "solve": args.solve} if args.scenario == "bridge" else {}),
         "imu_samples": int(prob.imu.t_s.size), "keyframes": int(res.t_s.size),
         "factors": sum(res.factor_counts.values()), "iterations": res.iterations,
         "final_cost": res.final_cost, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_stages_s": stages,

@@ -374,7 +374,8 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
     out: dict[str, Any] = {"time_sync": time_sync, "rejected_prism": rejected}
     odo = problem.odometer
     if odo is not None:
-        out["registration"] = registration_report(survey, res.station_states, odo, fs.registration, problem.origin)
+        out["registration"] = registration_report(survey, res.station_states, odo, fs.registration, problem.origin,
+                                                  res.station_cov)
         before_t, before_p = [], []
         for j, st in enumerate(survey.stations.values()):
             t, p = corrected_points(st, states[j])
@@ -391,6 +392,13 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
         except TrackfusionError as exc:
             out["round_trip"] = {"error": str(exc)}
     return out
+
+
+def _smooth_batch(problem: FusionProblem, say: Callable[[str], None]) -> SmootherResult:
+    """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
+    (registration/two_stage.py), anything else by :func:`smooth`."""
+    from .registration.two_stage import smooth_two_stage, uses_two_stage
+    return smooth_two_stage(problem, progress=say) if uses_two_stage(problem) else smooth(problem, say)
 
 
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
@@ -469,7 +477,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
                 del stream
             else:
-                res = smooth(problem, say)
+                res = _smooth_batch(problem, say)
                 tic = time.perf_counter()
                 dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
                                 res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),

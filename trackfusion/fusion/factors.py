@@ -43,6 +43,7 @@ class LinearBlocks:
     sigma: np.ndarray
     huber_k: float | None = None
     whiten: np.ndarray | None = None  # (K, m, m) square-root information; replaces sigma
+    group: np.ndarray | None = None  # (K,) int: factors of one group share their keys and become one JacobianFactor
 
     def _w(self, x: np.ndarray) -> np.ndarray:
         if self.whiten is None:
@@ -74,6 +75,9 @@ def to_jacobian_factors(blocks: LinearBlocks, graph: gtsam.GaussianFactorGraph) 
     sw = np.sqrt(blocks.weights())
     A = [blocks._w(J) * sw[:, None, None] for J in blocks.jacobians]
     b = -blocks.whitened() * sw[:, None]
+    if blocks.group is not None:
+        _stacked_jacobian_factors(blocks.keys, A, b, blocks.group, graph)
+        return
     unit = gtsam.noiseModel.Unit.Create(b.shape[1])
     keys = [k.tolist() for k in blocks.keys]
     if len(A) == 1:
@@ -88,6 +92,27 @@ def to_jacobian_factors(blocks: LinearBlocks, graph: gtsam.GaussianFactorGraph) 
                                            b[i], unit))
     else:
         raise ValueError("factors with 1 to 3 keys only")
+
+
+def _stacked_jacobian_factors(keys: list[np.ndarray], A: list[np.ndarray], b: np.ndarray, group: np.ndarray,
+                              graph: gtsam.GaussianFactorGraph) -> None:
+    """One JacobianFactor per group of factors with the same keys, their whitened rows stacked
+    (the same information as one factor each, in far fewer Python calls and GTSAM factors).
+    keys: per slot (K,); A: per slot (K, m, d); b (K, m); group (K,) int."""
+    order = np.argsort(group, kind="stable")
+    start = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
+    size = np.diff(np.r_[start, order.size])
+    m = b.shape[1]
+    for n in np.unique(size):
+        first = start[size == n]
+        idx = order[first[:, None] + np.arange(n)[None, :]]  # (G, n) members of each group of n
+        As = [a[idx].reshape(idx.shape[0], n * m, a.shape[2]) for a in A]
+        bs = b[idx].reshape(idx.shape[0], n * m)
+        ks = [k[idx[:, 0]].tolist() for k in keys]
+        unit = gtsam.noiseModel.Unit.Create(n * m)
+        for g in range(idx.shape[0]):
+            args = [item for j in range(len(As)) for item in (ks[j][g], As[j][g])]
+            graph.add(gtsam.JacobianFactor(*args, bs[g], unit))
 
 
 # --- non-holonomic constraint ------------------------------------------------------------------

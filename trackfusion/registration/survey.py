@@ -169,9 +169,11 @@ def corrected_points(prep: StationPrep, state: np.ndarray) -> tuple[np.ndarray, 
     return t, prep.pos_n + np.cross(state[:3], d) + state[3:6]
 
 
-def station_estimates(survey: PrismSurvey, states: np.ndarray | None, origin: geodesy.Origin) -> dict[str, dict]:
+def station_estimates(survey: PrismSurvey, states: np.ndarray | None, origin: geodesy.Origin,
+                      cov: np.ndarray | None = None) -> dict[str, dict]:
     """Per station: estimated tilt (about the station's east, north axes) [arcsec], orientation
-    error [arcsec], translation [mm], clock offset [s] and drift [ppm]; set-up and resection."""
+    error [arcsec], translation [mm], clock offset [s] and drift [ppm]; set-up and resection;
+    with ``cov`` (8J,8J, the states' joint marginal covariance) their sigmas (``sigma``)."""
     out = {}
     for j, (sid, p) in enumerate(survey.stations.items()):
         q = states[j] if states is not None else np.zeros(8)
@@ -182,6 +184,13 @@ def station_estimates(survey: PrismSurvey, states: np.ndarray | None, origin: ge
                     "tilt_arcsec": (tilt / ARCSEC).tolist(), "orientation_error_arcsec": float(-rot_k[2] / ARCSEC),
                     "translation_mm": (1e3 * q[3:6]).tolist(), "clock_offset_s": p.offset_s + float(q[6]),
                     "clock_drift_ppm": float(q[7]), "readings": int(p.t_s.size)}
+        if cov is not None:
+            c = cov[8 * j:8 * j + 8, 8 * j:8 * j + 8]
+            rot_sigma = np.sqrt(np.diag(R_nk.T @ c[:3, :3] @ R_nk)) / ARCSEC
+            out[sid]["sigma"] = {"tilt_arcsec": rot_sigma[:2].tolist(), "orientation_arcsec": float(rot_sigma[2]),
+                                 "translation_mm": (1e3 * np.sqrt(np.diag(c[3:6, 3:6]))).tolist(),
+                                 "clock_offset_ms": float(1e3 * np.sqrt(c[6, 6])),
+                                 "clock_drift_ppm": float(np.sqrt(c[7, 7]))}
         if p.resection is not None:
             out[sid]["resection"] = p.resection.to_json()
         if p.seed is not None:
@@ -208,9 +217,9 @@ def residual_table(s_a: np.ndarray, p_a: np.ndarray, s_b: np.ndarray, p_b: np.nd
 
 
 def registration_report(survey: PrismSurvey, states: np.ndarray | None, odometer: OdometerData,
-                        method: str, origin: geodesy.Origin) -> dict[str, Any]:
+                        method: str, origin: geodesy.Origin, cov: np.ndarray | None = None) -> dict[str, Any]:
     """The contract's ``registration`` entry (module docstring). ``states`` (J,8): the smoothed
-    station corrections (None: none estimated)."""
+    station corrections (None: none estimated); ``cov``: their covariance (see :func:`station_estimates`)."""
     ids = list(survey.stations)
     pairs: dict[str, dict] = {}
     for a, b in zip(ids[:-1], ids[1:]):
@@ -239,7 +248,7 @@ def registration_report(survey: PrismSurvey, states: np.ndarray | None, odometer
         residuals = {"before": first["before"], "after": first.get(after_key, first["before"]) if after_key
                      else first["before"]}
     return {"method": {"graph": "factor_graph", "seed": "seed_003", "none": "none"}[method],
-            "stations": station_estimates(survey, states, origin), "residuals": residuals, "pairs": pairs}
+            "stations": station_estimates(survey, states, origin, cov), "residuals": residuals, "pairs": pairs}
 
 
 def _undo(p: StationPrep) -> np.ndarray:
