@@ -77,8 +77,9 @@ def decimated_imu(imu: ImuData, m: int) -> ImuData:
 def prisms_near(prisms: PrismReadings, t_grid_s: np.ndarray, window_s: float) -> PrismReadings:
     """The readings at most ``window_s`` from the nearest of ``t_grid_s`` (sorted)."""
     near = np.abs(prisms.t_s - t_grid_s[nearest_sample(t_grid_s, prisms.t_s)]) <= window_s
+    flagged = None if prisms.flagged is None else prisms.flagged[near]  # the step check's mis-locks
     return replace(prisms, t_s=prisms.t_s[near], pos_n=prisms.pos_n[near], cov_n=prisms.cov_n[near],
-                   station=prisms.station[near])
+                   station=prisms.station[near], flagged=flagged)
 
 
 def transported(prisms: PrismReadings, odometer: OdometerData, t_grid_s: np.ndarray,
