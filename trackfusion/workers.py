@@ -10,6 +10,7 @@ from __future__ import annotations
 import multiprocessing
 import multiprocessing.connection
 import os
+import signal
 from typing import Any, Callable
 
 
@@ -47,7 +48,7 @@ def run_forked(task: Callable[[int], Any], n: int) -> list[Any]:
     try:
         for i in range(n):
             reader, writer = ctx.Pipe(duplex=False)
-            p = ctx.Process(target=_child, args=(task, i, writer), name=f"trackfusion-worker-{i}", daemon=True)
+            p = ctx.Process(target=_child, args=(task, i, writer, os.getpid()), name=f"trackfusion-worker-{i}", daemon=True)
             p.start()
             writer.close()  # the child's end: EOF here once the child is gone
             procs.append(p)
@@ -77,7 +78,20 @@ def run_forked(task: Callable[[int], Any], n: int) -> list[Any]:
             conn.close()
 
 
-def _child(task: Callable[[int], Any], i: int, conn) -> None:
+def _die_with_parent(parent_pid: int) -> None:
+    """Have the kernel kill this process when its parent dies (Linux ``PR_SET_PDEATHSIG``): a
+    parent killed by a signal runs no clean-up, and its workers would be left running."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:  # the parent died before the call
+        os._exit(1)
+
+
+def _child(task: Callable[[int], Any], i: int, conn, parent_pid: int) -> None:
+    _die_with_parent(parent_pid)
     try:
         answer = (True, task(i))
     except BaseException as exc:  # noqa: BLE001 -- every failure goes to the parent
