@@ -13,7 +13,16 @@ of ``every``); it returns compact arrays (keyframe states, marginal sigmas, the 
 counts; no GTSAM object) through a pipe.
 
 At a join ``t_j`` the two neighbours' solutions differ by a little (measured per join in
-metrics.json ``segments.joins``). The parent blends them over the window ``t_j - h .. t_j + h``,
+metrics.json ``segments.joins``): mostly a slowly varying offset of a few mm (each segment's own
+estimate of the absolute level, which the correlated GNSS error leaves uncertain by about that
+much), on the 5 m scale nothing. A blend over a window alone would turn that offset into a ramp
+(2 mm over a 60 s window at 3 m/s: 0.05 mm per 5 m, half the relative-accuracy figure), so the
+parent first applies a **level correction**: each segment's positions are shifted by a
+function linear in time from half the mean difference over the window of its left join
+(towards its left neighbour) to half that of its right join (zero at the run's ends), a slope of
+a few mm over a whole core; velocities by its rate. What remains at the join is the
+difference's variation over the window (tenths of a mm). The parent then blends the two
+solutions over the window ``t_j - h .. t_j + h``,
 ``h = BLEND_FRACTION * overlap_s``, inside the shared overlap (each segment keeps at least
 ``overlap_s - h`` of data beyond the window), with the quintic smoothstep ``w`` (0 to 1; ``w``,
 ``w'`` and ``w''`` continuous): position ``(1 - w) p_A + w p_B``; velocity
