@@ -89,6 +89,7 @@ def main() -> None:
         "factors": sum(metrics["factors"].values()), "wall_s": wall, "samples_per_s": samples / wall,
         "peak_rss_mb": peak_mb, "peak_tree_pss_mb": tree_pss_mb, "timings_s": metrics["timings_s"],
         "segments": metrics.get("segments", {}).get("count", 1),
+        "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
         "targets": {"wall_s": 60.0, "samples_per_s": 30000, "peak_rss_mb": 4096},
     }
     RESULTS.parent.mkdir(exist_ok=True)
