@@ -4,7 +4,8 @@ Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
 1. ``open-track-gnss`` (seed 002's set-up) for each seed, in variants in the shape of
    seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), the
    full pipeline with the correlated GNSS errors switched off (white fixes), and the full
-   pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch). Relative
+   pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch), and in
+   one batch (``smoother.workers: 1``; the others run in two parallel segments on 2 CPUs). Relative
    accuracy at L = 5 m (MSE sigma1 and ADEV, vertical and lateral), absolute RMS, and the
    consistency RMS(error / sigma) per n axis; mean and worst over the seeds, and the consistency
    pooled over the seeds with its 95 % interval for honest sigmas (one run of the GNSS's
@@ -36,6 +37,8 @@ VARIANTS = {
     "gnss+nhc+odometer": {},
     "full, white GNSS": {"gnss": {"correlated_sigma_h_mm": 0.0, "correlated_sigma_v_mm": 0.0}},
     "full, 600 s chunks": {"smoother": {"chunk_s": 600.0, "overlap_s": 120.0}},
+    # the variants above run in 2 parallel segments on a machine with 2 CPUs (fusion/segments.py)
+    "full, one batch": {"smoother": {"workers": 1}},
 }
 TARGETS = {"vertical": (0.15, 0.07), "lateral": (0.25, 0.12)}
 SEED_002 = {"vertical": (0.31, 0.13), "lateral": (0.51, 0.25)}

@@ -1,13 +1,16 @@
 """Benchmark: relative accuracy at 5 m across chunk joins against inside the chunks.
 
-Usage: python benchmarks/chunk_seams.py [--seeds 1 2 3]   (after benchmarks/accuracy.py, which
-leaves the batch run ``out-gnss-nhc-odometer`` and the run in 600 s chunks ``out-full_600schunks``
+Usage: python benchmarks/chunk_seams.py [--seeds 1 2 3] [--segments]   (after benchmarks/accuracy.py, which
+leaves the one-batch run ``out-full_onebatch`` and the run in 600 s chunks ``out-full_600schunks``
 of each ``open-track-gnss`` seed under ``$TMPDIR/trackfusion-bench``.)
 For every moving sample, the error (estimate minus truth) 5 m of travel further minus the error
 there, lateral and vertical; RMS over the pairs straddling a join, over those starting within
 30 s of a join, and over the rest, for the chunked and the batch run. A seam shows as a larger
 RMS across the joins in the chunked run than in the batch run over the same pairs.
-Writes benchmarks/results/chunk_seams.json.
+With ``--segments``, the same across the joins of the two parallel segments (fusion/segments.py):
+the default run ``out-gnss-nhc-odometer`` (two segments on a 2-CPU machine) against accuracy.py's
+``full, one batch`` (``out-full_onebatch``). Writes benchmarks/results/chunk_seams.json
+(segment_seams.json).
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results" / "chunk_seams.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
-RUNS = {"chunked": "out-full_600schunks", "batch": "out-gnss-nhc-odometer"}
+RUNS = {"chunked": "out-full_600schunks", "batch": "out-full_onebatch"}
+#: ``--segments``: the run in two parallel segments (fusion/segments.py) against the one batch
+SEGMENT_RUNS = {"segmented": "out-gnss-nhc-odometer", "batch": "out-full_onebatch"}
 CHUNK_S, OVERLAP_S, L_M = 600.0, 120.0, 5.0
 
 
@@ -50,15 +55,20 @@ def pairs(t_s: np.ndarray, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(out_i), np.concatenate(out_j)
 
 
-def seed_figures(seed: int) -> dict:
+def seed_figures(seed: int, runs: dict[str, str] = RUNS) -> dict:
     from trackfusion.fusion.chunks import join_times
     from trackfusion.sensors.fileio import read_csv_table
     sim = CACHE / f"open-track-gnss-{seed}"
     truth = read_csv_table(sim / "truth.csv")
-    errs = {k: _errors(sim, name, truth) for k, name in RUNS.items()}
-    t = errs["chunked"][0]
+    errs = {k: _errors(sim, name, truth) for k, name in runs.items()}
+    first = next(iter(runs))
+    t = errs[first][0]
     i, j = pairs(t, np.interp(t, truth["t_s"], truth["chainage_m"]))
-    joins = join_times(t[0], t[-1], CHUNK_S, OVERLAP_S)
+    if first == "segmented":
+        metrics = json.loads((sim / runs[first] / "metrics.json").read_text())
+        joins = np.array([j_["t_s"] for j_ in metrics["segments"]["joins"]])
+    else:
+        joins = join_times(t[0], t[-1], CHUNK_S, OVERLAP_S)
     straddle = np.zeros(i.size, bool)
     near = np.zeros(i.size, bool)
     for tj in joins:
@@ -78,17 +88,24 @@ def seed_figures(seed: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--segments", action="store_true",
+                    help="the joins of the parallel segments (runs of accuracy.py's default and 'full, one batch')")
     args = ap.parse_args()
-    rows = [seed_figures(s) for s in args.seeds]
-    print(f"RMS of 5 m error differences [mm], lateral / vertical; chunks of {CHUNK_S:g} s, overlap {OVERLAP_S:g} s")
+    runs = SEGMENT_RUNS if args.segments else RUNS
+    first = next(iter(runs))
+    rows = [seed_figures(s, runs) for s in args.seeds]
+    print("RMS of 5 m error differences [mm], lateral / vertical; "
+          + ("2 parallel segments, overlap 120 s" if args.segments else f"chunks of {CHUNK_S:g} s, overlap {OVERLAP_S:g} s"))
     for r in rows:
-        cells = "  ".join(f"{label}: chunked {r[f'chunked_{label}_lateral_mm']:.3f}/{r[f'chunked_{label}_vertical_mm']:.3f}"
+        cells = "  ".join(f"{label}: {first} {r[f'{first}_{label}_lateral_mm']:.3f}/{r[f'{first}_{label}_vertical_mm']:.3f}"
                           f" batch {r[f'batch_{label}_lateral_mm']:.3f}/{r[f'batch_{label}_vertical_mm']:.3f}"
                           for label in ("straddling", "within_30s", "elsewhere"))
         print(f"seed {r['seed']} ({len(r['joins_s'])} joins): {cells}")
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps({"chunk_s": CHUNK_S, "overlap_s": OVERLAP_S, "L_m": L_M, "seeds": rows}, indent=2) + "\n")
-    print(f"wrote {RESULTS}")
+    out = RESULTS.with_name("segment_seams.json") if args.segments else RESULTS
+    out.parent.mkdir(exist_ok=True)
+    head = {"workers": 2, "overlap_s": 120.0} if args.segments else {"chunk_s": CHUNK_S, "overlap_s": OVERLAP_S}
+    out.write_text(json.dumps({**head, "L_m": L_M, "seeds": rows}, indent=2) + "\n")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Benchmark: CPU seconds of the smoother's stages on the speed benchmark's hour of 500 Hz data.
 
 Usage: python benchmarks/solver_cpu.py [--passes N] [--scenario open-track|bridge] [--out FILE]
+       [--densify | --segments N]
 The wall times of benchmarks/speed.py and bridge.py swing with the load of a shared machine;
 the process CPU time of the estimation core (preintegrate, build, solve, marginals) does much
 less, so before/after comparisons of the solver are made with this script (run it from each
@@ -18,6 +19,7 @@ import argparse
 import json
 import subprocess
 import time
+from dataclasses import replace
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
@@ -51,15 +53,30 @@ def main() -> None:
     ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
                     help="bridge: factors.total_stations.solve (registration/two_stage.py)")
     ap.add_argument("--seed", type=int, default=1, help="bridge: the seed of benchmarks/bridge.py")
+    ap.add_argument("--densify", action="store_true", help="one batch: time the densification too")
+    ap.add_argument("--segments", type=int, default=1,
+                    help="smooth in that many parallel segments (fusion/segments.py), here one after the other; "
+                         "the stages then include the densification of the rows at 100 Hz, as the workers do it")
     args = ap.parse_args()
     prob = problem(args.scenario, args.passes, args.solve, args.seed)
-    from trackfusion.fusion import smoother
+    from trackfusion.fusion import segments, smoother
     from trackfusion.registration.two_stage import smooth_two_stage, uses_two_stage
     wall, cpu = time.perf_counter(), time.process_time()
     real_clock = time.perf_counter
     time.perf_counter = time.process_time  # the smoother's own stage timings, in CPU seconds
+    per_segment = None
     try:
-        res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
+        if args.segments > 1:
+            segments.can_fork = lambda n: False  # in turn, in this process: each segment's CPU seconds
+            prob = replace(prob, smoother=prob.smoother.model_copy(update={"workers": args.segments}))
+            res, _, info = segments.smooth_in_segments(prob, every=5)
+            per_segment = [s["timings_s"] for s in info["segments"]]
+        else:
+            res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
+            if args.densify:
+                tic = time.process_time()
+                densify_rows(prob, res)
+                res.timings_s["densify_s"] = time.process_time() - tic
     finally:
         time.perf_counter = real_clock
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -74,6 +91,9 @@ def main() -> None:
         "final_cost": res.final_cost, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_stages_s": stages,
         "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
     }
+    if per_segment is not None:  # stages above: the slowest segment's; CPU of each and its critical path
+        result["segments"] = [{k: round(v, 2) for k, v in t.items()} for t in per_segment]
+        result["critical_path_cpu_s"] = round(max(t["cpu_s"] for t in per_segment), 2)
     out = args.out or (RESULTS if args.scenario == "open-track" else RESULTS.with_name("solver_cpu_bridge.json"))
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
@@ -81,7 +101,20 @@ def main() -> None:
           f"{result['factors']} factors, {res.iterations} iterations")
     print(f"estimation core: {cpu:.1f} CPU s ({wall:.1f} s wall, load {result['load_average_1min']:.1f}): "
           + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in stages.items()))
+    if per_segment is not None:
+        print(f"{len(per_segment)} segments, CPU s each: " + ", ".join(f"{t['cpu_s']:.1f}" for t in per_segment)
+              + f"; with a core each, the estimation core takes the slowest: {result['critical_path_cpu_s']:.1f} CPU s")
     print(f"wrote {out}")
+
+
+def densify_rows(prob, res) -> None:
+    """The one-batch run's densification (pipeline.run does it after the smoother)."""
+    import numpy as np
+    from trackfusion import geodesy
+    from trackfusion.fusion.trajectory import densify
+    densify(prob.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps, res.accel_bias_mps2,
+            geodesy.gravity_n(res.pos_n, prob.origin),
+            geodesy.earth_rate_n(prob.origin) if prob.factors.imu.earth_rate else np.zeros(3))
 
 
 if __name__ == "__main__":

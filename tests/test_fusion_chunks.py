@@ -34,7 +34,8 @@ CHUNK_S, OVERLAP_S = 60.0, 30.0
 
 def _run(d, chunk_s):
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
-    data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S)
+    # workers 1: the batch is one batch (with this overlap it would be cut into parallel segments)
+    data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S, workers=1)
     return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
 
 

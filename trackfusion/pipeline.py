@@ -33,6 +33,7 @@ from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
+from .fusion.segments import smooth_in_segments
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .fusion.trajectory import densify
@@ -477,14 +478,19 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
                 del stream
             else:
-                res = _smooth_batch(problem, say)
-                tic = time.perf_counter()
-                dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                                res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                                geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
+                segmented = smooth_in_segments(problem, every, say)  # parallel segments (fusion/segments.py)
+                if segmented is not None:  # the rows come densified and decimated
+                    res, dense, info["segments"] = segmented
+                    tic, rows_every = time.perf_counter(), 1
+                else:
+                    res = _smooth_batch(problem, say)
+                    tic, rows_every = time.perf_counter(), every
+                    dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
+                                    res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
+                                    geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-                table = evaluation_table = trajectory_table(dense, res, chainage, every)
+                table = evaluation_table = trajectory_table(dense, res, chainage, rows_every)
                 fused_table = None
                 writer.write(table, background)  # formatted in a forked child (trackfusion/forked.py)
         timings.update(res.timings_s)

@@ -184,6 +184,11 @@ class SmootherSettings(_Strict):
     ``chunk_s`` / ``overlap_s``: runs longer than ``chunk_s + overlap_s`` are smoothed in
     overlapping chunks (fusion/chunks.py), so memory is bounded by the chunk; ``chunk_s: null``
     solves any run as one batch (memory grows with its length: about 1.5 GB an hour at 500 Hz).
+
+    ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
+    segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
+    forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
+    with two CPUs or more, else 1 (one batch).
     """
 
     max_iterations: int = Field(10, ge=1)
@@ -191,6 +196,7 @@ class SmootherSettings(_Strict):
     marginal_step_s: float = Field(1.0, gt=0)
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)
+    workers: int | None = Field(None, ge=1, le=16)
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":

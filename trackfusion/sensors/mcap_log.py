@@ -31,7 +31,6 @@ import concurrent.futures
 import io
 import itertools
 import json
-import multiprocessing
 import operator
 import os
 import struct
@@ -49,6 +48,7 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata
                           SummaryOffset)
 
 from .. import __version__
+from ..workers import can_fork, fork_context
 from ..errors import SensorDataError
 from . import schemas
 from .fileio import atomic_path
@@ -641,16 +641,13 @@ class _Decoder:
     def __init__(self):
         self.pool: ProcessPoolExecutor | None = None
         self.in_flight: collections.deque[Future] = collections.deque()
-        self.parallel = (DECODE_WORKERS >= 2 and len(os.sched_getaffinity(0)) >= 2
-                         and multiprocessing.parent_process() is None
-                         and "fork" in multiprocessing.get_all_start_methods())
+        self.parallel = can_fork(DECODE_WORKERS)
 
     def decode(self, payloads: list[bytes], schema: str) -> Any:
         """A future of :func:`_decode_batch` (or its result when decoding here)."""
         if self.parallel and self.pool is None:
             try:
-                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS,
-                                                mp_context=multiprocessing.get_context("fork"))
+                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS, mp_context=fork_context())
             except (OSError, ValueError):
                 self.parallel = False
         future = None
