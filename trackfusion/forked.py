@@ -16,7 +16,6 @@ every function runs at once in this process (the same results and errors, in tur
 from __future__ import annotations
 
 import gc
-import multiprocessing
 import os
 import pickle
 import signal
@@ -24,6 +23,7 @@ import traceback
 from typing import Any, Callable
 
 from .errors import TrackfusionError
+from .workers import can_fork as workers_may_fork
 
 #: False: run every task in this process, in turn (e.g. to compare timings)
 ENABLED = True
@@ -36,8 +36,7 @@ class ForkedTaskError(TrackfusionError):
 
 def can_fork() -> bool:
     """True when tasks would run in forked children (module docstring)."""
-    return (ENABLED and not _IN_CHILD and hasattr(os, "fork") and len(os.sched_getaffinity(0)) >= 2
-            and multiprocessing.parent_process() is None)
+    return ENABLED and not _IN_CHILD and workers_may_fork(2)
 
 
 class ForkedTask:
@@ -111,15 +110,18 @@ class ForkedTask:
 class ForkedTasks:
     """Functions run in forked children (module docstring); use as a context manager."""
 
-    def __init__(self):
+    def __init__(self, always_fork: bool = False):
+        """``always_fork``: fork even where :func:`can_fork` says no (the caller has decided, e.g.
+        :func:`trackfusion.workers.run_forked`)."""
         self.tasks: list[ForkedTask] = []
+        self.always_fork = always_fork
 
     def submit(self, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> ForkedTask:
         """Run ``fn(*args, **kwargs)`` in a forked child (here when :func:`can_fork` is False);
         ``what`` names the work in error messages (e.g. ``"writing fused.mcap"``)."""
         task = ForkedTask(what)
         self.tasks.append(task)
-        if not can_fork():
+        if not (self.always_fork or can_fork()):
             try:
                 task._settle(value=fn(*args, **kwargs))
             except Exception as exc:  # noqa: BLE001 (raised by result(), as from a child)
@@ -127,8 +129,10 @@ class ForkedTasks:
             return task
         read_fd, write_fd = os.pipe()
         gc.freeze()  # the child's collector leaves this process's objects (and their pages) alone
+        parent_pid = os.getpid()
         pid = os.fork()
         if pid == 0:  # pragma: no cover (runs in the child; covered through its answers)
+            _die_with_parent(parent_pid)
             _child(read_fd, write_fd, fn, args, kwargs)
         gc.unfreeze()
         os.close(write_fd)
@@ -161,6 +165,18 @@ class ForkedTasks:
             self.kill()
         else:
             self.wait()
+
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Have the kernel kill this (child) process when its parent dies (Linux ``PR_SET_PDEATHSIG``):
+    a parent killed by a signal runs no clean-up, and its children would be left running."""
+    try:
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent_pid:  # the parent died before the call
+        os._exit(1)
 
 
 def _child(read_fd: int, write_fd: int, fn: Callable, args: tuple, kwargs: dict) -> None:
