@@ -4,3 +4,17 @@
 SHORT_OPEN_TRACK = ["motion.passes=1",
                     "motion.segments=[{hold_s: 30}, {move_to_m: 260, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10},"
                     " {move_to_m: 120, speed_mps: 2, accel_mps2: 0.4}]"]
+
+
+def errors_against_truth(d, tab):
+    """Position errors (N,3) [m] of a trajectory table ``tab`` against the survey folder ``d``'s
+    truth.csv (Hermite-interpolated at its times), and the true chainage (N,) [m] there."""
+    import numpy as np
+    from trackfusion.evaluation.errors_series import hermite_interpolate
+    from trackfusion.sensors.fileio import read_csv_table
+    truth = read_csv_table(d / "truth.csv")
+    pos_t = np.column_stack([truth[c] for c in ("e_m", "n_m", "u_m")])
+    vel_t = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
+    ref = hermite_interpolate(truth["t_s"], pos_t, vel_t, tab["t_s"])
+    return (np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")]) - ref,
+            np.interp(tab["t_s"], truth["t_s"], truth["chainage_m"]))

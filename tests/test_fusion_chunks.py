@@ -20,14 +20,12 @@ import numpy as np
 import pytest
 import yaml
 
-from trackfusion.evaluation.errors_series import hermite_interpolate
 from trackfusion.fusion.chunks import join_times
 from trackfusion.pipeline import parse_pipeline, run
 from trackfusion.rotations import R_from_quat, so3_log
-from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.scenarios import simulate_to_dir
 
-from surveys import SHORT_OPEN_TRACK as SHORT
+from surveys import SHORT_OPEN_TRACK as SHORT, errors_against_truth
 
 CHUNK_S, OVERLAP_S = 60.0, 30.0
 
@@ -44,15 +42,6 @@ def runs(tmp_path_factory):
     d = tmp_path_factory.mktemp("chunks")
     simulate_to_dir("open-track-gnss", d, seed=6, overrides=SHORT)
     return d, _run(d, None), _run(d, CHUNK_S)
-
-
-def _errors(d, tab):
-    truth = read_csv_table(d / "truth.csv")
-    pos_t = np.column_stack([truth[c] for c in ("e_m", "n_m", "u_m")])
-    vel_t = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
-    ref = hermite_interpolate(truth["t_s"], pos_t, vel_t, tab["t_s"])
-    return np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")]) - ref, np.interp(tab["t_s"], truth["t_s"],
-                                                                                     truth["chainage_m"])
 
 
 def _joins(tab):
@@ -86,8 +75,8 @@ def test_relative_accuracy_across_joins_equals_inside(runs):
     one (each chunk sees less data) by as much inside the chunks as across the joins: a seam
     would add to the pairs straddling a join."""
     d, batch, chunked = runs
-    err_c, s = _errors(d, chunked.trajectory)
-    err_b, _ = _errors(d, batch.trajectory)
+    err_c, s = errors_against_truth(d, chunked.trajectory)
+    err_b, _ = errors_against_truth(d, batch.trajectory)
     t = chunked.trajectory["t_s"]
     ahead = np.searchsorted(s, s + 5.0)  # forward runs: first sample 5 m further
     ok = (ahead < s.size) & (np.gradient(s, t) > 0.5)

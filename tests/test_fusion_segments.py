@@ -26,14 +26,12 @@ import yaml
 
 from trackfusion import cli
 from trackfusion.errors import FusionError
-from trackfusion.evaluation.errors_series import hermite_interpolate
 from trackfusion.fusion import segments
 from trackfusion.pipeline import parse_pipeline, run
 from trackfusion.rotations import R_from_quat, so3_log
-from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.scenarios import simulate_to_dir
 
-from surveys import SHORT_OPEN_TRACK as SHORT
+from surveys import SHORT_OPEN_TRACK as SHORT, errors_against_truth
 
 OVERLAP_S = 30.0
 FAST = {"fused_mcap": False, "report": False}
@@ -99,15 +97,6 @@ def test_blend_weight_is_smooth_and_its_rate_is_its_derivative():
     assert dw[0] == 0.0 and dw[-1] == 0.0
 
 
-def _errors(d, tab):
-    truth = read_csv_table(d / "truth.csv")
-    pos_t = np.column_stack([truth[c] for c in ("e_m", "n_m", "u_m")])
-    vel_t = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
-    ref = hermite_interpolate(truth["t_s"], pos_t, vel_t, tab["t_s"])
-    return np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")]) - ref, np.interp(tab["t_s"], truth["t_s"],
-                                                                                     truth["chainage_m"])
-
-
 def _pos(tab):
     return np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")])
 
@@ -136,8 +125,8 @@ def test_segmented_run_equals_the_batch_within_tolerance(runs):
     assert np.all(np.abs(diff) <= np.maximum(3.0 * sigma, 1e-4)) and np.abs(diff).max() < 0.010
     for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m"):
         assert np.allclose(b[c], a[c], rtol=0.25)
-    ea, s = _errors(d, a)
-    eb, _ = _errors(d, b)
+    ea, s = errors_against_truth(d, a)
+    eb, _ = errors_against_truth(d, b)
     moving = np.gradient(s, a["t_s"]) > 0.5
     i = np.flatnonzero(moving)
     j = np.searchsorted(s, s[i] + 5.0)
