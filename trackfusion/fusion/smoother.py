@@ -27,6 +27,7 @@ from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
+from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 DEG = np.pi / 180.0
@@ -852,13 +853,10 @@ def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray
     c = nearest_sample(initial.t_s, t_key)
     at_c = nearest_sample(t_key, initial.t_s)[c]  # this run's keyframe nearest to each one's anchor
     R = initial.R_nb[c] @ np.swapaxes(R_chain[at_c], 1, 2) @ R_chain
+    pos = hermite_interpolate(initial.t_s, initial.pos_n, initial.vel_n, t_key)
     i = np.clip(np.searchsorted(initial.t_s, t_key) - 1, 0, initial.t_s.size - 2)
-    h = initial.t_s[i + 1] - initial.t_s[i]
-    u = ((t_key - initial.t_s[i]) / h)[:, None]
-    p0, p1, v0, v1 = initial.pos_n[i], initial.pos_n[i + 1], initial.vel_n[i], initial.vel_n[i + 1]
-    pos = ((2 * u**3 - 3 * u**2 + 1) * p0 + (u**3 - 2 * u**2 + u) * h[:, None] * v0
-           + (-2 * u**3 + 3 * u**2) * p1 + (u**3 - u**2) * h[:, None] * v1)
-    vel = (1 - u) * v0 + u * v1
+    u = ((t_key - initial.t_s[i]) / (initial.t_s[i + 1] - initial.t_s[i]))[:, None]
+    vel = (1 - u) * initial.vel_n[i] + u * initial.vel_n[i + 1]
     return R, pos, vel
 
 
