@@ -32,8 +32,8 @@ if src:
     sys.path.insert(0, src)
 import importlib, pkgutil
 import trackfusion
-cpu_clock = types.SimpleNamespace(perf_counter=time.process_time, time=time.time, strftime=time.strftime,
-                                  monotonic=time.monotonic, sleep=time.sleep)
+cpu_clock = types.SimpleNamespace(perf_counter=time.process_time, process_time=time.process_time, time=time.time,
+                                  strftime=time.strftime, monotonic=time.monotonic, sleep=time.sleep)
 for info in pkgutil.walk_packages(trackfusion.__path__, "trackfusion."):
     try:
         module = importlib.import_module(info.name)
@@ -84,7 +84,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         done = subprocess.run([sys.executable, "-c", _CHILD, str(Path(args.src).resolve()) if args.src else "",
                                str(sim / "pipeline.yaml"), str(Path(tmp) / "out"), tmp],
-                              check=True, capture_output=True, text=True)
+                              capture_output=True, text=True)
+    if done.returncode:
+        sys.exit(f"the measured run failed ({done.returncode}):\n{done.stderr.strip()}")
     entry = json.loads(done.stdout.strip().splitlines()[-1])
     entry["date"] = time.strftime("%Y-%m-%d %H:%M")
     results = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}

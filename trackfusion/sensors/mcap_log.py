@@ -52,6 +52,7 @@ from ..workers import can_fork, fork_context
 from ..errors import SensorDataError
 from . import schemas
 from .fileio import atomic_path
+from .number_parse import parse_numbers
 from .spill import trim_heap
 from .types import GaugeData, GnssData, ImuData, InclinometerData, OdometerData, SensorLog, TotalStationData
 
@@ -967,83 +968,11 @@ class _Bad(Exception):
 _NUMBER_CHARS = b"0123456789.eE+-"
 _TO_SPACE = bytes(c if c in _NUMBER_CHARS else 32 for c in range(256))
 
-# JSON number grammar (RFC 8259: -?(0|[1-9]\d*)(\.\d+)?([eE][+-]?\d+)?) as character classes:
-# 0 separator, 1 digit 1-9, 2 digit 0, 3 ".", 4 "e"/"E", 5 "+", 6 "-".
-_CLASS = np.zeros(256, np.uint8)
-_CLASS[np.frombuffer(b"123456789", np.uint8)] = 1
-_CLASS[[ord("0"), ord("."), ord("e"), ord("E"), ord("+"), ord("-")]] = [2, 3, 4, 4, 5, 6]
-_TO_CLASS = _CLASS.tobytes()
-_FOLLOWERS = {0: (0, 1, 2, 6), 1: (0, 1, 2, 3, 4), 2: (0, 1, 2, 3, 4), 3: (1, 2), 4: (1, 2, 5, 6), 5: (1, 2),
-              6: (1, 2)}
-_GRAMMAR_BLOCK = 1 << 17
-
-
-def _pair_table() -> np.ndarray:
-    """(49,) bool: class pair (a, b) may be neighbours (index 7a + b) in a run of JSON numbers."""
-    table = np.zeros(49, bool)
-    for prev, nexts in _FOLLOWERS.items():
-        table[[7 * prev + c for c in nexts]] = True
-    return table
-
-
-def _skeleton_table() -> np.ndarray:
-    """(343,) bool: class triple (a, b, c) (index 49a + 7b + c) may occur in the digit-free skeleton of
-    JSON numbers, whose tokens are ``-? .? (e[+-]?)?``; c is judged after its two predecessors."""
-    table = np.zeros(343, bool)
-    for a, b, c in itertools.product(range(7), repeat=3):
-        lead_minus = b == 6 and a == 0
-        table[49 * a + 7 * b + c] = {
-            0: True, 1: False, 2: False,
-            3: b == 0 or lead_minus,
-            4: b in (0, 3) or lead_minus,
-            5: b == 4,
-            6: b in (0, 4),
-        }[c] and not (b in (5, 6) and a == 4 and c != 0)
-    return table
-
-
-_PAIR_OK = _pair_table()
-_SKELETON_OK = _skeleton_table()
-
-
-def _code_blocks(data: bytes, delete: bytes, n: int):
-    """Class codes (uint8) of ``data`` with the ``delete`` characters removed, in blocks of about
-    _GRAMMAR_BLOCK bytes (bounded memory). The sequence is padded with n - 1 separators (0) at each
-    end and consecutive blocks overlap by n - 1 codes, so every n-gram lies wholly inside a block."""
-    pad = np.zeros(n - 1, np.uint8)
-    carry = pad
-    for start in range(0, len(data), _GRAMMAR_BLOCK):
-        codes = np.frombuffer(data[start:start + _GRAMMAR_BLOCK].translate(_TO_CLASS, delete), np.uint8)
-        block = np.concatenate([carry, codes])
-        yield block
-        carry = block[block.size - (n - 1):]
-    yield np.concatenate([carry, pad])
-
-
-def _json_numbers(numbers: bytes) -> bool:
-    """True when every space-separated token of ``numbers`` (number characters and spaces only) is a
-    JSON number: '+1', '01', '.5', '1.', '1e', '1.2.3', '1e2.5' are not (numpy would parse some).
-
-    Vectorised in blocks: every pair of neighbouring characters must be allowed (``_PAIR_OK``), no
-    integer part may start with 0 followed by a digit, and the digit-free skeleton of each token
-    must be ``-? .? (e[+-]?)?`` (``_SKELETON_OK``, checked on triples).
-    """
-    for c in _code_blocks(numbers, b"", 4):
-        if not _PAIR_OK[c[:-1] * 7 + c[1:]].all():
-            return False
-        starts_int = (c[1:-2] == 0) | ((c[1:-2] == 6) & (c[:-3] == 0))
-        if ((c[2:-1] == 2) & (c[3:] - 1 < 2) & starts_int).any():
-            return False
-    for c in _code_blocks(numbers, b"0123456789", 3):
-        if not _SKELETON_OK[c[:-2].astype(np.uint16) * 49 + c[1:-1] * 7 + c[2:]].all():
-            return False
-    return True
-
 
 def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np.ndarray | None:
     """Values (N, k) of payloads in the exact canonical layout, or None if any payload differs from it.
 
-    Checks, all in C: deleting every number character from the joined text leaves the template's
+    Checks, all vectorised: deleting every number character from the joined text leaves the template's
     skeleton N times; each literal piece holding number characters occurs the expected number of
     times; every number follows the JSON grammar (:func:`_json_numbers`); the numbers then parse to
     exactly N*k values.
@@ -1061,13 +990,10 @@ def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np
             text = text.replace(piece, b" ")
     numbers = text.translate(_TO_SPACE)
     del text
-    if not _json_numbers(numbers):
+    values = parse_numbers(numbers)
+    if values is None or values.size != n * k:
         return None
-    tokens = numbers.split()  # JSON numbers only (checked above): float() parses each exactly
-    del numbers
-    if len(tokens) != n * k:
-        return None
-    return np.fromiter(map(float, tokens), dtype=np.float64, count=n * k).reshape(n, k)
+    return values.reshape(n, k)
 
 
 def _value_problem(v, path: str, kind: str) -> str | None:
