@@ -729,9 +729,9 @@ class _Scan:
         elif (known.topic, known.schema_id, known.encoding) != (topic, schema_id, encoding):
             raise _Corrupt(f"channel id {cid} defined twice differently", c.base)
 
-    def add_messages(self, data: bytes, offsets: list[int], base: int) -> None:
+    def add_messages(self, data: bytes, offsets: list[int] | np.ndarray, base: int) -> None:
         """Messages of one chunk (or one top-level message): ``offsets`` of their records in ``data``."""
-        if not offsets:
+        if len(offsets) == 0:
             return
         off = np.asarray(offsets, dtype=np.int64)
         raw = np.frombuffer(data, dtype=np.uint8)
@@ -743,8 +743,8 @@ class _Scan:
         if unknown.any():
             i = int(np.argmax(unknown))
             raise _Corrupt(f"message refers to undefined channel {int(channel[i])}", base + int(off[i]))
-        starts = (off + 31).tolist()
-        stops = (off + 9 + hdr["length"].astype(np.int64)).tolist()
+        starts = off + 31
+        stops = off + 9 + hdr["length"].astype(np.int64)
         for cid in np.unique(channel).tolist():
             ch = self.channels[cid]
             sel = channel == cid
@@ -752,8 +752,7 @@ class _Scan:
             if self.wanted is not None and ch.topic not in self.wanted:
                 continue
             ch.times.append(hdr["log_time"][sel])
-            idx = np.flatnonzero(sel).tolist()
-            ch.payloads.extend(data[starts[i]:stops[i]] for i in idx)
+            ch.payloads.extend(map(data.__getitem__, map(slice, starts[sel].tolist(), stops[sel].tolist())))
             if len(ch.payloads) >= _DECODE_BATCH:
                 try:
                     schema = _channel_schema(self, ch)
@@ -767,8 +766,40 @@ class _Scan:
         return f"{self.n_messages} records readable" + (f" ({per_topic})" if per_topic else "")
 
 
+def _message_offsets(data: bytes) -> np.ndarray | None:
+    """Offsets (int64) of a chunk's records when every record is a Message whose payload is a JSON
+    object (what trackfusion writes), found without walking the records one by one; None
+    otherwise (then :func:`_walk_chunk` walks them).
+
+    Candidates are the bytes 5 (Message opcode) followed by a 32-bit record length and, 31 bytes
+    on, ``{``; the record lengths must then chain them from offset 0 to the end of the chunk, so
+    the offsets are exactly those a walk finds (a candidate that lies inside a record is skipped:
+    no record ends at it)."""
+    raw = np.frombuffer(data, np.uint8)
+    if raw.size < 32 or raw[0] != _MESSAGE:
+        return None
+    candidates = np.flatnonzero(raw[:raw.size - 40] == np.uint8(_MESSAGE))  # (a whole header and a byte)
+    candidates = candidates[raw[candidates + 31] == ord("{")]
+    lengths = raw[candidates[:, None] + np.arange(1, 9)].copy().view("<u8").ravel()
+    stops = candidates + 9 + np.minimum(lengths, raw.size).astype(np.int64)
+    following = np.searchsorted(candidates, stops)  # the candidate at each record's end, if any
+    landed = np.append(candidates, raw.size)[following] == stops
+    reached = np.zeros(candidates.size + 1, bool)  # offset 0 and every candidate a record ends at
+    reached[0] = True
+    reached[following[landed]] = True
+    chain = np.flatnonzero(reached[:-1])
+    if not (landed[chain].all() and np.array_equal(following[chain], np.append(chain[1:], candidates.size))):
+        return None
+    return candidates[chain]
+
+
 def _walk_chunk(scan: _Scan, data: bytes, base: int, complete: bool) -> None:
     """Parse the records of one decompressed chunk; a cut last record ends a partial chunk."""
+    if complete:
+        fast = _message_offsets(data)
+        if fast is not None:
+            scan.add_messages(data, fast, base)
+            return
     offsets: list[int] = []
     pos, size, head = 0, len(data), _RECORD_HEAD.unpack_from
     while pos + 9 <= size:
@@ -788,13 +819,20 @@ def _walk_chunk(scan: _Scan, data: bytes, base: int, complete: bool) -> None:
         raise _Corrupt("chunk records do not fill the chunk", base)
 
 
-def _inflate(compression: str, data: bytes, size: int, at: int) -> bytes:
-    """Decompress a chunk's records (up to ``size`` bytes; a cut zstd frame yields its readable prefix)."""
+def _inflate(compression: str, data: bytes, size: int, at: int, complete: bool = False) -> bytes:
+    """Decompress a chunk's records (up to ``size`` bytes; a cut zstd frame yields its readable prefix).
+    A ``complete`` zstd chunk is inflated in one call (a quarter faster than streaming), streamed
+    only when that fails (the streamed result and its checks then say why)."""
     if size > _MAX_CHUNK_BYTES:
         raise _Corrupt(f"chunk claims {size} uncompressed bytes", at)
     if compression == "":
         return data[:size]
     if compression == "zstd":
+        if complete:
+            try:
+                return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            except zstandard.ZstdError:
+                pass
         try:
             return zstandard.ZstdDecompressor().decompressobj().decompress(data)
         except zstandard.ZstdError as exc:
@@ -818,7 +856,7 @@ def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool) -> None:
     data = body[c.pos:c.pos + declared]
     if complete and len(data) != declared:
         raise _Corrupt("chunk data length beyond its record", at)
-    records = _inflate(compression, data, size, at)
+    records = _inflate(compression, data, size, at, complete)
     if complete:
         if len(records) != size:
             raise _Corrupt(f"chunk inflates to {len(records)} bytes, header says {size}", at)

@@ -96,16 +96,14 @@ def _digits_value(digit: np.ndarray, read: np.ndarray) -> np.ndarray:
     digit: (width, n) uint8 digit values; read: (width, n) bool, the digits to read (others are
     skipped). Pairs of rows are merged into factors and values of the pair (``v * f + d``) in
     small integer types, then groups of 8 rows are combined into the result in uint64."""
-    factor = np.where(read, np.uint8(10), np.uint8(1))
-    value = np.where(read, digit, np.uint8(0))
-    pad = -len(factor) % 8
-    if pad:
-        factor = np.concatenate([factor, np.ones((pad, factor.shape[1]), np.uint8)])
-        value = np.concatenate([value, np.zeros((pad, value.shape[1]), np.uint8)])
+    factor = read * np.uint8(9) + np.uint8(1)
+    value = digit * read
+    if len(factor) % 8:
+        raise ValueError("digits_value needs a multiple of 8 rows")
     for wider in (np.uint16, np.uint32, np.uint64):  # rows (a, b) -> (f_a f_b, d_a f_b + d_b)
-        f_a, f_b = factor[0::2].astype(wider), factor[1::2].astype(wider)
-        value = value[0::2].astype(wider) * f_b + value[1::2]
-        factor = f_a * f_b
+        f_b = factor[1::2].astype(wider)
+        value = value[0::2] * f_b + value[1::2]
+        factor = factor[0::2] * f_b
     total = np.zeros(factor.shape[1], np.uint64)
     for f, v in zip(factor, value):
         total *= f
@@ -149,7 +147,7 @@ def parse_numbers(numbers: bytes) -> np.ndarray | None:
     if n == 0:
         return np.zeros(0)
     lengths = ends - starts
-    width = int(min(lengths.max(), MAX_WIDTH))
+    width = -(-int(min(lengths.max(), MAX_WIDTH)) // 8) * 8  # rows beyond a number's end are masked
     padded = np.concatenate([a, np.full(width + 8, 32, np.uint8)])
     chars = np.lib.stride_tricks.sliding_window_view(padded, width)[starts].T.copy()  # (width, n)
     column = np.arange(n)
