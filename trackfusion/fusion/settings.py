@@ -188,7 +188,8 @@ class SmootherSettings(_Strict):
     ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
     segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
     forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
-    with two CPUs or more, else 1 (one batch).
+    with two CPUs or more, else 1 (one batch). A run that stays in one batch (total stations) is
+    densified in that many forked processes instead (fusion/densify_forked.py: the same rows).
 
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
     from the rate at which the steps shrink, is below this (fusion/convergence.py); null: 0.02 mm
