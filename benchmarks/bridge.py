@@ -13,7 +13,8 @@ noise), run the pipeline (registration in the factor graph) and compare with the
 - the absolute RMS error against the truth, vertical and lateral;
 - the overlap residuals TS01-TS02 before registration, after seed 003's method and after the
   factor graph's (tables 1-2 form);
-- the wall time of the whole run (``timings_s.total_s``; the machine may be shared).
+- the wall time of the whole run (``timings_s.total_s``; the machine may be shared), and its CPU
+  seconds with its forked workers' (``cpu_s``) and the load average before and after it.
 With ``--variants`` (first seed only) the survey is also fused with ``registration: seed``
 and ``registration: none`` for a side-by-side of the fused results.
 Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes benchmarks/results/bridge.json.
@@ -102,6 +103,13 @@ def figures(metrics: dict, truth: dict) -> dict:
     return out
 
 
+def cpu_s() -> float:
+    """CPU seconds [s] of this process and of its children waited for (the run's forked workers)."""
+    import resource
+    return sum(resource.getrusage(who).ru_utime + resource.getrusage(who).ru_stime
+               for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+
+
 def checks(f: dict) -> dict:
     st = f["stations"].values()
     rt = f["round_trip"]["after_fusion"]
@@ -163,11 +171,16 @@ def main() -> None:
     for seed in args.seeds:
         sim = simulated(seed)
         truth = json.loads((sim / "truth.json").read_text())
+        load_before, cpu0 = os.getloadavg()[0], cpu_s()
         f = figures(run(sim, "graph", args.solve).metrics, truth)
+        # the run's CPU seconds (this process and its forked workers): less swayed by a shared machine
+        f["cpu_s"], f["load_average_1min"] = cpu_s() - cpu0, [load_before, os.getloadavg()[0]]
         c = checks(f)
         per_seed[seed] = {"figures": f, "checks": c, "reported": reported(f)}
         worst = {k: max(worst[k], c[k]) for k in TARGETS}
         print(f"seed {seed}: " + ", ".join(f"{k} {v:.3g} (target {TARGETS[k]:g})" for k, v in c.items()))
+        print(f"  run: {f['run_s']:.1f} s wall, {f['cpu_s']:.1f} CPU s (with its workers), load average "
+              f"{f['load_average_1min'][0]:.1f} before / {f['load_average_1min'][1]:.1f} after")
         print(f"  also: " + ", ".join(f"{k} {v:.3g}" for k, v in per_seed[seed]["reported"].items())
               + f", consistency e/n/u {f['consistency_rms_error_over_sigma']}")
         for sid, s in f["stations"].items():

@@ -33,10 +33,10 @@ from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
-from .fusion.segments import smooth_in_segments
+from .fusion.densify_forked import densify_forked
+from .fusion.segments import smooth_in_segments, worker_count
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
-from .fusion.trajectory import densify
 from .forked import ForkedTasks
 from .registration.stations import StationSetupConfig
 from .report.outputs import start_table_outputs
@@ -485,9 +485,12 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 else:
                     res = _smooth_batch(problem, say)
                     tic, rows_every = time.perf_counter(), every
-                    dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                                    res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                                    geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3))
+                    # in forked workers (the same rows): fusion/densify_forked.py
+                    dense = densify_forked(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n,
+                                           res.gyro_bias_radps, res.accel_bias_mps2,
+                                           geodesy.gravity_n(res.pos_n, problem.origin),
+                                           geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate
+                                           else np.zeros(3), worker_count(sm))
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
                 table = evaluation_table = trajectory_table(dense, res, chainage, rows_every)

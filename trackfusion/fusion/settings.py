@@ -188,11 +188,17 @@ class SmootherSettings(_Strict):
     ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
     segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
     forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
-    with two CPUs or more, else 1 (one batch).
+    with two CPUs or more, else 1 (one batch). A run that stays in one batch (total stations) is
+    densified in that many forked processes instead (fusion/densify_forked.py: the same rows).
+
+    ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
+    from the rate at which the steps shrink, is below this (fusion/convergence.py); null: 0.02 mm
+    in runs fusing total stations, off (0) otherwise.
     """
 
     max_iterations: int = Field(10, ge=1)
     relative_tolerance: float = Field(1e-7, gt=0)
+    step_tolerance_mm: float | None = Field(None, ge=0)
     marginal_step_s: float = Field(1.0, gt=0)
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)

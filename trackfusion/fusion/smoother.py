@@ -25,6 +25,7 @@ from ..errors import FusionError
 from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
+from .convergence import StepHistory, step_tolerance_m
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
 from ..evaluation.errors_series import hermite_interpolate
@@ -523,15 +524,24 @@ class _Solved:
     initial_cost: float
     cost: float
     tree: gtsam.GaussianBayesTree
+    ordering: gtsam.Ordering | None = None
+    history: StepHistory = field(default_factory=StepHistory)  # fusion/convergence.py
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None]) -> _Solved:
-    """Gauss-Newton with step halving (see :class:`_Solved`)."""
-    state = _State.of(values, with_scale)
-    cost = cost0 = _total_cost(G, values, with_scale, state)
+                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None) -> _Solved:
+    """Gauss-Newton with step halving (see :class:`_Solved`). Stops when the cost falls by less
+    than ``rtol`` (relative) or the predicted remaining correction is below ``step_tol_m``
+    (fusion/convergence.py). ``previous``: the solve of the same graph that ended at ``values``
+    (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
+    and when its steps have converged already its tree is returned without a new iteration."""
+    state = previous.state if previous is not None else _State.of(values, with_scale)
+    cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state)
     it = 0
-    tree = ordering = None
+    tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, None)
+    history = previous.history.copy() if previous is not None else StepHistory()
+    if history.converged(step_tol_m):
+        return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
     for it in range(1, max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state)
         ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
@@ -548,11 +558,14 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         if not new_cost <= cost:
             break
         decrease = (cost - new_cost) / max(cost, 1e-300)
+        if step < 1.0:  # a damped step says nothing about the rate of convergence
+            history = StepHistory()
+        history.add(state.p, new_state.p)
         values, cost, state = new, new_cost, new_state
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
-        if decrease < rtol:
+        if decrease < rtol or history.converged(step_tol_m):
             break
-    return _Solved(values, state, it, cost0, cost, tree)
+    return _Solved(values, state, it, cost0, cost, tree, ordering, history)
 
 
 def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
@@ -787,6 +800,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     cost0 = None
     gating = gnss is not None or prisms is not None
     rtol = problem.smoother.relative_tolerance
+    step_tol = step_tolerance_m(problem.smoother.step_tolerance_mm, prisms is not None)
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
@@ -798,7 +812,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         # a gating round need not converge to the last digit before its gate: the tolerance is
         # tightened once the gate rejects nothing more (below)
         sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say)
+                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol)
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
@@ -816,8 +830,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             used = used[~bad]
             newly_rejected |= bool(np.any(bad))
         if not newly_rejected:
-            if gating:  # the gate is settled: converge to the configured tolerance
-                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say)
+            if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
+                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol)
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic

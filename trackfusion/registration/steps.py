@@ -108,7 +108,7 @@ def _window_fits(t: np.ndarray, pos: np.ndarray, info: np.ndarray, splits: np.nd
     N = np.matmul(BB.transpose(0, 2, 1), W.reshape(C, M, 9))                                  # (C, P*P, 9)
     N = N.reshape(C, _P, _P, 3, 3).transpose(0, 1, 3, 2, 4).reshape(C, 3 * _P, 3 * _P)
     Wp = np.einsum("cmij,cmj->cmi", W, p)
-    rhs = np.einsum("cma,cmi->cai", basis, Wp).reshape(-1, 3 * _P)
+    rhs = (np.swapaxes(basis, 1, 2) @ Wp).reshape(-1, 3 * _P)  # (C, P, 3): matmul, far faster than einsum here
     unit = np.zeros((3 * _P, 3))
     unit[-3:] = np.eye(3)
     sol = np.linalg.solve(N, np.concatenate([rhs[:, :, None], np.broadcast_to(unit, (C, 3 * _P, 3))], axis=2))

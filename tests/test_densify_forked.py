@@ -1,0 +1,54 @@
+"""The densification of a one-batch run in forked workers (fusion/densify_forked.py) gives the
+same rows, bit for bit, as one densify() call; and the parts are cut at densify's blocks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trackfusion.fusion import densify_forked as DF
+from trackfusion.fusion.trajectory import densify
+from trackfusion.rotations import so3_exp
+from trackfusion.sensors.types import ImuData
+
+
+def test_part_bounds_cut_at_blocks_and_cover_every_interval():
+    assert DF.part_bounds(31617, 2) == [(0, 16000), (16000, 31617)]
+    assert DF.part_bounds(31617, 1) == [(0, 31617)]
+    assert DF.part_bounds(DF.MIN_INTERVALS_PER_WORKER - 1, 2) == [(0, DF.MIN_INTERVALS_PER_WORKER - 1)]
+    for n, w in ((9000, 2), (20001, 3), (50000, 4)):
+        b = DF.part_bounds(n, w)
+        assert b[0][0] == 0 and b[-1][1] == n and len(b) == w
+        assert all(x[1] == y[0] and x[1] % DF.BLOCK == 0 for x, y in zip(b[:-1], b[1:]))
+
+
+@pytest.fixture(scope="module")
+def keyframed():
+    """A synthetic IMU (500 Hz, 10 s of turning and accelerating) and keyframe states 0.1 s apart
+    (perturbed, so that forward and backward integrations differ and the blend matters)."""
+    rng = np.random.default_rng(5)
+    n = 5_001
+    t = np.arange(n) / 500.0
+    gyro = np.column_stack([1e-3 * np.sin(0.3 * t), 2e-3 * np.cos(0.2 * t), 0.01 * np.sin(0.05 * t)])
+    accel = np.column_stack([0.2 * np.sin(0.1 * t), 0.05 * np.cos(0.3 * t), np.full(n, 9.8)])
+    imu = ImuData(t, gyro + 1e-5 * rng.normal(size=(n, 3)), accel + 1e-3 * rng.normal(size=(n, 3)))
+    key_idx = np.r_[np.arange(0, n - 1, 50), n - 1]
+    K = key_idx.size
+    R = so3_exp(1e-3 * rng.normal(size=(K, 3)))
+    args = (imu, key_idx, R, rng.normal(size=(K, 3)), rng.normal(size=(K, 3)), 1e-6 * rng.normal(size=(K, 3)),
+            1e-4 * rng.normal(size=(K, 3)), np.tile([0.0, 0.0, -9.79], (K, 1)), np.array([0.0, 5e-5, 4e-5]))
+    return args
+
+
+def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)  # 100 intervals: 2 parts of whole blocks
+    monkeypatch.setattr(DF, "BLOCK", 20)
+    assert DF.part_bounds(keyframed[1].size - 1, 2) == [(0, 40), (40, 100)]
+    whole = densify(*keyframed, block=20)
+    for forked in (True, False):  # in forked children, or the same parts in turn here
+        monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
+        monkeypatch.setattr(DF, "run_forked", DF.run_forked if forked else
+                            (lambda task, n: [task(i) for i in range(n)]))
+        parts = DF.densify_forked(*keyframed, workers=2)
+        for name in ("t_s", "R_nb", "pos_n", "vel_n"):
+            np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name))

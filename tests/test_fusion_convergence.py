@@ -1,0 +1,39 @@
+"""The step-size stopping rule (fusion/convergence.py): the geometric tail of a linearly
+converging sequence of steps. On a short simulated bridge the rule gives the cost criterion's
+solution in fewer iterations: tests/test_total_station_run.py (its simulation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from trackfusion.fusion import convergence as C
+
+
+def _history(steps_m):
+    h = C.StepHistory()
+    p = np.zeros((4, 3))
+    for s in steps_m:
+        q = p.copy()
+        q[1, 2] += s  # the largest change of one keyframe's position
+        h.add(p, q)
+        p = q
+    return h
+
+
+def test_geometric_tail_of_linear_convergence():
+    h = _history([1.0, 1e-3, 1e-4])  # the first step (from the coarse start) is far larger
+    assert h.remaining_m() == pytest.approx(1e-4 * 0.1 / 0.9)
+    assert h.converged(2e-5) and not h.converged(1e-5) and not h.converged(0.0)
+
+
+def test_no_claim_before_three_steps_or_when_slow():
+    assert _history([1.0, 1e-6]).remaining_m() == np.inf  # one ratio: could be the first step's
+    assert _history([1e-3, 6e-4, 3e-4]).remaining_m() == np.inf  # rho above RHO_MAX
+    assert _history([1e-3, 1e-4, 0.0]).remaining_m() == 0.0
+
+
+def test_default_tolerance_only_in_total_station_runs():
+    assert C.step_tolerance_m(None, True) == pytest.approx(C.STATION_RUN_STEP_TOLERANCE_MM * 1e-3)
+    assert C.step_tolerance_m(None, False) == 0.0
+    assert C.step_tolerance_m(0.05, False) == pytest.approx(5e-5)
