@@ -66,6 +66,15 @@ class NhcSettings(_Factor):
         return np.array([lateral, vertical]) * 1e-3
 
 
+class WheelPathSettings(_Factor):
+    """The rear reference-rail wheel passes through the points the front one touched, one
+    wheelbase of odometer distance later (lateral and vertical; fusion/wheel_path.py,
+    docs/wheel_path.md). Needs the odometer; ``sigma_mm`` per axis."""
+
+    enabled: bool = False
+    sigma_mm: float = Field(0.01, gt=0)
+
+
 class OdometerFactorSettings(_Factor):
     """Distance increments between keyframes with a scale-error state (random walk)."""
 
@@ -141,6 +150,7 @@ class FactorSettings(_Strict):
     imu: ImuFactorSettings = ImuFactorSettings()
     zupt: ZuptSettings = ZuptSettings()
     nhc: NhcSettings = NhcSettings()
+    wheel_path: WheelPathSettings = WheelPathSettings()
     odometer: OdometerFactorSettings = OdometerFactorSettings()
     gnss: GnssFactorSettings = GnssFactorSettings()
     inclinometer: InclinometerFactorSettings = InclinometerFactorSettings()
