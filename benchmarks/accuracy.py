@@ -2,7 +2,8 @@
 
 Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
 1. ``open-track-gnss`` (seed 002's set-up) for each seed, in variants in the shape of
-   seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), the
+   seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), then with the
+   wheel-path factor (docs/wheel_path.md; the default pipeline from here on), the
    full pipeline with the correlated GNSS errors switched off (white fixes), and the full
    pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch), and in
    one batch (``smoother.workers: 1``; the others run in two parallel segments on 2 CPUs). Relative
@@ -34,7 +35,8 @@ CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 VARIANTS = {
     "gnss": {"nhc": False, "odometer": False},
     "gnss+nhc": {"odometer": False},
-    "gnss+nhc+odometer": {},
+    "gnss+nhc+odometer": {"wheel_path": False},
+    "gnss+nhc+odometer+wheel path": {},
     "full, white GNSS": {"gnss": {"correlated_sigma_h_mm": 0.0, "correlated_sigma_v_mm": 0.0}},
     "full, 600 s chunks": {"smoother": {"chunk_s": 600.0, "overlap_s": 120.0}},
     # the variants above run in 2 parallel segments on a machine with 2 CPUs (fusion/segments.py)

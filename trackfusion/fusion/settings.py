@@ -69,10 +69,11 @@ class NhcSettings(_Factor):
 class WheelPathSettings(_Factor):
     """The rear reference-rail wheel passes through the points the front one touched, one
     wheelbase of odometer distance later (lateral and vertical; fusion/wheel_path.py,
-    docs/wheel_path.md). Needs the odometer; ``sigma_mm`` per axis."""
+    docs/wheel_path.md). Used when there is an odometer; ``sigma_mm`` per axis; one factor at
+    every ``keyframe_step``-th keyframe (the front wheel's; 2: the hour's CPU cost within 2 s)."""
 
-    enabled: bool = False
     sigma_mm: float = Field(0.01, gt=0)
+    keyframe_step: int = Field(2, ge=1)
 
 
 class OdometerFactorSettings(_Factor):

@@ -585,7 +585,10 @@ def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
     try:
         return tree.marginalCovariance(key)
     except RuntimeError:
-        R_inv = np.linalg.inv(tree.marginalFactor(key, gtsam.EliminateQR).R())
+        # keep the conditional alive while reading it: R() of a temporary reads freed memory
+        # (marginals of 1e-90 and 0.1 rad seen on open-track-gnss with the wheel-path factor)
+        marginal = tree.marginalFactor(key, gtsam.EliminateQR)
+        R_inv = np.linalg.inv(np.array(marginal.R()))
         return R_inv @ R_inv.T
 
 

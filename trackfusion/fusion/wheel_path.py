@@ -170,6 +170,8 @@ def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: 
     from .factors import LinearBlocks
     tr, st = problem.trolley, problem.factors.wheel_path
     pairs = rear_times(t_key, problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
+    every = pairs.k % st.keyframe_step == 0
+    pairs = WheelPairs(pairs.k[every], pairs.j[every], pairs.tau_s[every])
     k, j = pairs.k, pairs.j
     dR, dp = body_deltas(problem.imu, key_idx[j], pairs.tau_s)
     g_n = geodesy.gravity_n(pos0_n[j], problem.origin)
