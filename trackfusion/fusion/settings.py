@@ -70,8 +70,11 @@ class WheelPathSettings(_Factor):
     """The rear reference-rail wheel passes through the points the front one touched, one
     wheelbase of odometer distance later (lateral and vertical; fusion/wheel_path.py,
     docs/wheel_path.md). Used when there is an odometer; ``sigma_mm`` per axis; one factor at
-    every ``keyframe_step``-th keyframe (the front wheel's; 2: the hour's CPU cost within 2 s)."""
+    every ``keyframe_step``-th keyframe (the front wheel's; 2: the hour's CPU cost within 2 s).
+    Opt-in: with it, the chunk and segment joins no longer match the (much better) accuracy
+    inside them (docs/wheel_path.md, "Not done")."""
 
+    enabled: bool = False
     sigma_mm: float = Field(0.01, gt=0)
     keyframe_step: int = Field(2, ge=1)
 
