@@ -2,7 +2,8 @@
 
 Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
 1. ``open-track-gnss`` (seed 002's set-up) for each seed, in variants in the shape of
-   seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), the
+   seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), then with the
+   wheel-path factor (docs/wheel_path.md; opt-in), the
    full pipeline with the correlated GNSS errors switched off (white fixes), and the full
    pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch), and in
    one batch (``smoother.workers: 1``; the others run in two parallel segments on 2 CPUs). Relative
@@ -34,11 +35,13 @@ CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 VARIANTS = {
     "gnss": {"nhc": False, "odometer": False},
     "gnss+nhc": {"odometer": False},
-    "gnss+nhc+odometer": {},
+    "gnss+nhc+odometer": {"wheel_path": False},
+    "gnss+nhc+odometer+wheel path": {"wheel_path": True},
     "full, white GNSS": {"gnss": {"correlated_sigma_h_mm": 0.0, "correlated_sigma_v_mm": 0.0}},
     "full, 600 s chunks": {"smoother": {"chunk_s": 600.0, "overlap_s": 120.0}},
     # the variants above run in 2 parallel segments on a machine with 2 CPUs (fusion/segments.py)
     "full, one batch": {"smoother": {"workers": 1}},
+    "full, one batch, wheel path": {"smoother": {"workers": 1}, "wheel_path": True},
 }
 TARGETS = {"vertical": (0.15, 0.07), "lateral": (0.25, 0.12)}
 SEED_002 = {"vertical": (0.31, 0.13), "lateral": (0.51, 0.25)}

@@ -1,7 +1,7 @@
 """Benchmark: CPU seconds of the smoother's stages on the speed benchmark's hour of 500 Hz data.
 
 Usage: python benchmarks/solver_cpu.py [--passes N] [--scenario open-track|bridge] [--out FILE]
-       [--densify | --segments N]
+       [--densify | --segments N] [--wheel-path on|off]
 The wall times of benchmarks/speed.py and bridge.py swing with the load of a shared machine;
 the process CPU time of the estimation core (preintegrate, build, solve, marginals) does much
 less, so before/after comparisons of the solver are made with this script (run it from each
@@ -57,8 +57,13 @@ def main() -> None:
     ap.add_argument("--segments", type=int, default=1,
                     help="smooth in that many parallel segments (fusion/segments.py), here one after the other; "
                          "the stages then include the densification of the rows at 100 Hz, as the workers do it")
+    ap.add_argument("--wheel-path", choices=["on", "off"], default=None,
+                    help="switch factors.wheel_path on or off (default: as the pipeline.yaml; docs/wheel_path.md)")
     args = ap.parse_args()
     prob = problem(args.scenario, args.passes, args.solve, args.seed)
+    if args.wheel_path is not None:
+        wheel = prob.factors.wheel_path.model_copy(update={"enabled": args.wheel_path == "on"})
+        prob = replace(prob, factors=prob.factors.model_copy(update={"wheel_path": wheel}))
     from trackfusion.fusion import segments, smoother
     from trackfusion.registration.two_stage import smooth_two_stage, uses_two_stage
     wall, cpu = time.perf_counter(), time.process_time()

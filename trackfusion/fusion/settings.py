@@ -66,6 +66,19 @@ class NhcSettings(_Factor):
         return np.array([lateral, vertical]) * 1e-3
 
 
+class WheelPathSettings(_Factor):
+    """The rear reference-rail wheel passes through the points the front one touched, one
+    wheelbase of odometer distance later (lateral and vertical; fusion/wheel_path.py,
+    docs/wheel_path.md). Used when there is an odometer; ``sigma_mm`` per axis; one factor at
+    every ``keyframe_step``-th keyframe (the front wheel's; 2: the hour's CPU cost within 2 s).
+    Opt-in: with it, the chunk and segment joins no longer match the (much better) accuracy
+    inside them (docs/wheel_path.md, "Not done")."""
+
+    enabled: bool = False
+    sigma_mm: float = Field(0.01, gt=0)
+    keyframe_step: int = Field(2, ge=1)
+
+
 class OdometerFactorSettings(_Factor):
     """Distance increments between keyframes with a scale-error state (random walk)."""
 
@@ -141,6 +154,7 @@ class FactorSettings(_Strict):
     imu: ImuFactorSettings = ImuFactorSettings()
     zupt: ZuptSettings = ZuptSettings()
     nhc: NhcSettings = NhcSettings()
+    wheel_path: WheelPathSettings = WheelPathSettings()
     odometer: OdometerFactorSettings = OdometerFactorSettings()
     gnss: GnssFactorSettings = GnssFactorSettings()
     inclinometer: InclinometerFactorSettings = InclinometerFactorSettings()

@@ -28,6 +28,7 @@ from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory, step_tolerance_m
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
+from .wheel_path import wheel_path_builder
 from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
 
@@ -442,6 +443,14 @@ class _Builder:
         self.builders.append(("nhc", build))
         self._count("nhc", K)
 
+    def wheel_path(self, omega_ie_n: np.ndarray) -> None:
+        """Rear wheel through the front wheel's points (fusion/wheel_path.py)."""
+        K = self.t.size
+        n, build = wheel_path_builder(self.pb, self.t, self.idx, self.pos0, X(0) + np.arange(K),
+                                      V(0) + np.arange(K), omega_ie_n)
+        self.builders.append(("wheel_path", build))
+        self._count("wheel_path", n)
+
     def inclinometer(self) -> None:
         inc, st = self.pb.inclinometer, self.pb.factors.inclinometer
         inside = np.flatnonzero((self.t >= inc.t_s[0]) & (self.t <= inc.t_s[-1]))
@@ -589,7 +598,10 @@ def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
     try:
         return tree.marginalCovariance(key)
     except RuntimeError:
-        R_inv = np.linalg.inv(tree.marginalFactor(key, gtsam.EliminateQR).R())
+        # keep the conditional alive while reading it: R() of a temporary reads freed memory
+        # (marginals of 1e-90 and 0.1 rad seen on open-track-gnss with the wheel-path factor)
+        marginal = tree.marginalFactor(key, gtsam.EliminateQR)
+        R_inv = np.linalg.inv(np.array(marginal.R()))
         return R_inv @ R_inv.T
 
 
@@ -781,6 +793,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         b.nhc()
     if with_scale:
         b.odometer()
+    if fs.wheel_path.enabled and problem.odometer is not None:
+        b.wheel_path(omega_ie_n)
     if problem.inclinometer is not None and fs.inclinometer.enabled:
         b.inclinometer()
     base_graph, base_builders, base_counts, base_soft = b.g, list(b.builders), dict(b.counts), b.soft.copy()

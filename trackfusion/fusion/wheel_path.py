@@ -1,0 +1,188 @@
+"""Wheel-path factor: the rear reference-rail wheel runs through the points the front one touched.
+
+Both reference-rail wheels of the trolley (simulation/trolley.py) roll on the same rail line,
+a wheelbase ``l`` apart. The rear contact point at time ``t'`` therefore sits where the front
+contact point was at time ``t`` when the rear wheel's chainage at ``t'`` is the front wheel's
+at ``t``, i.e. when the odometer distance has grown by ``l``: ``d(t') = d(t) + l`` (for a
+rear or a front odometer wheel alike). With ``P = p + R_nb lever_arm_b`` the contact point,
+
+    P_rear(t') = P_front(t),
+
+exactly, whatever the irregularity: the trolley frame follows the chord between the wheels
+and this says nothing else. Unlike the non-holonomic constraint (NHC, whose vertical and
+lateral violation is the irregularity's coloured signal, treated as white noise;
+track/nhc_noise.py) it holds for the rigid trolley to the last micrometre. docs/wheel_path.md
+derives it and gives the measurements.
+
+The residual is the difference in the trolley frame ``v`` of the front keyframe ``k``, its
+lateral and vertical components only (two rows)::
+
+    r = P_yz R_vb R_k^T (P_front(t_k) - P_rear(t'))
+
+The along-rail component is left out: an error ``e`` of the odometer distance over the
+wheelbase (scale error, tick quantum, slips) moves the rear point along the rail, which in
+``v`` is along x to within the rail's slope against the chord (~1e-3 rad): ``1e-3 e``.
+
+``t'`` falls between keyframes ``j`` and ``j + 1``; the rear contact there is reached from
+keyframe ``j`` by integrating the IMU samples over ``tau = t' - t_j`` (< one keyframe spacing)
+in ``j``'s body frame (:func:`body_deltas`, the preintegration's mechanisation)::
+
+    p(t')  = p_j + v_j tau + (g - 2 omega_ie x v_j) tau^2 / 2 + R_j dp
+    R(t')  = Exp(-omega_ie tau) R_j dR
+
+so the factor joins three variables: ``X(k)``, ``X(j)``, ``V(j)``. Left out (approximation
+error, navigation-grade IMU, 0.1 s keyframes): the IMU bias over ``tau`` (10 ug: 0.5 um), the
+accelerometer white noise (0.9 um), the Earth's rotation of the integrated specific force
+(0.4 um); the Earth rate of the lever arm is kept (7 um at 1 m). Pairs whose ``j`` is ``k``
+(speeds above one wheelbase per keyframe spacing, 12 m/s at 1.2 m and 0.1 s) are skipped.
+
+Pure maths: no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..rotations import skew, so3_exp
+from ..sensors.types import ImuData
+from .preintegration import sculling_compensated
+
+_P_YZ = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+#: odometer distance change [m] per keyframe interval below which the trolley counts as standing
+STANDING_M = 1e-4
+
+
+@dataclass
+class WheelPairs:
+    """Front keyframe ``k`` (M,) and rear time ``t'`` as keyframe ``j`` (M,) plus ``tau_s`` (M,) [s]."""
+
+    k: np.ndarray
+    j: np.ndarray
+    tau_s: np.ndarray
+
+
+def _runs(direction: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs ``(a, b)`` of keyframe intervals ``a .. b-1`` with the same nonzero direction."""
+    change = np.flatnonzero(np.diff(direction) != 0) + 1
+    bounds = np.r_[0, change, direction.size]
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if direction[a] != 0]
+
+
+def rear_times(t_key: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray, wheelbase_m: float) -> WheelPairs:
+    """For each keyframe, the time ``t'`` at which the rear reference-rail wheel reaches the
+    front wheel's contact point: ``d(t') = d(t_k) + wheelbase_m`` on the odometer's signed
+    distance (N,) [m] at ``odo_t_s`` (N,) [s], inside the same run of motion in one direction
+    (a stop or a reversal ends a run; pairs across one are not formed).
+
+    t_key (K,) [s]. Returns the pairs whose ``t'`` lies inside the run and whose rear keyframe
+    ``j`` (``t_j <= t' < t_{j+1}``) differs from ``k``.
+    """
+    d_key = np.interp(t_key, odo_t_s, odo_d_m)
+    step = np.diff(d_key)
+    direction = np.where(step > STANDING_M, 1, np.where(step < -STANDING_M, -1, 0))
+    ks, ts = [], []
+    for a, b in _runs(direction):
+        if abs(d_key[b] - d_key[a]) <= wheelbase_m:
+            continue
+        sel = (odo_t_s >= t_key[a]) & (odo_t_s <= t_key[b])
+        sign = direction[a]
+        d_run = np.maximum.accumulate(sign * odo_d_m[sel])  # monotone (tick noise, repaired records)
+        k = np.arange(a, b + 1)
+        target = sign * (d_key[k] + wheelbase_m)
+        inside = (target >= d_run[0]) & (target <= d_run[-1])
+        ks.append(k[inside])
+        ts.append(np.interp(target[inside], d_run, odo_t_s[sel]))
+    k = np.concatenate(ks) if ks else np.zeros(0, np.int64)
+    t_rear = np.concatenate(ts) if ts else np.zeros(0)
+    j = np.clip(np.searchsorted(t_key, t_rear, side="right") - 1, 0, t_key.size - 2)
+    keep = j != k
+    return WheelPairs(k[keep].astype(np.int64), j[keep], (t_rear - t_key[j])[keep])
+
+
+def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``dR`` (M,3,3) and position ``dp`` (M,3) [m] integrated in the body frame of
+    the IMU sample ``start_idx`` (M,) over ``tau_s`` (M,) [s] (the samples after it, the last one
+    for the part of its interval up to ``tau``; a sample is the mean over the interval that
+    ends at it), without gravity, bias and Earth rate: the preintegration's ``deltaRij`` and
+    ``deltaPij`` over a fraction of an interval."""
+    dt, f = sculling_compensated(imu)
+    n = imu.t_s.size
+    M = start_idx.size
+    dR = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
+    dv, dp = np.zeros((M, 3)), np.zeros((M, 3))
+    t_end = imu.t_s[start_idx] + tau_s
+    last = np.minimum(np.searchsorted(imu.t_s, t_end), n - 1)  # the sample whose interval holds t_end
+    for offset in range(1, int(np.max(last - start_idx, initial=0)) + 1):
+        s = np.minimum(start_idx + offset, n - 1)
+        h = np.clip(t_end - imu.t_s[s - 1], 0.0, dt[s])
+        a = np.einsum("kij,kj->ki", dR, f[s])
+        dp += dv * h[:, None] + 0.5 * a * h[:, None] ** 2
+        dv += a * h[:, None]
+        dR = dR @ so3_exp(imu.gyro_radps[s] * h[:, None])
+    return dR, dp
+
+
+def wheel_path_residual(R_k: np.ndarray, p_k: np.ndarray, R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray,
+                        tau_s: np.ndarray, dR: np.ndarray, dp: np.ndarray, gravity_n: np.ndarray,
+                        omega_ie_n: np.ndarray, front_b: np.ndarray, rear_b: np.ndarray, R_vb: np.ndarray
+                        ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Lateral and vertical offset in ``v`` (of keyframe k) of the front contact at ``t_k`` from
+    the rear contact at ``t' = t_j + tau`` (module docstring).
+
+    R_k, R_j (M,3,3) ``R_nb``; p_k, p_j, v_j (M,3) [m, m/s]; tau_s (M,) [s]; dR (M,3,3), dp (M,3)
+    from :func:`body_deltas`; gravity_n (M,3) [m/s^2]; omega_ie_n (3,) [rad/s]; front_b, rear_b (3,)
+    [m] IMU to the front / rear reference-rail wheel contact; R_vb (3,3).
+    Returns r (M,2) [m] and Jacobians [d/pose_k (M,2,6), d/pose_j (M,2,6), d/v_j (M,2,3)].
+    """
+    tau = tau_s[:, None]
+    earth = so3_exp(-omega_ie_n[None, :] * tau)
+    lever_rear = np.einsum("kij,j->ki", dR, rear_b)  # dR rear_b, in j's body frame
+    R_rear = earth @ R_j  # maps j's body frame to n at t'
+    P_rear = (p_j + v_j * tau + 0.5 * (gravity_n - 2.0 * np.cross(omega_ie_n, v_j)) * tau**2
+              + np.einsum("kij,kj->ki", R_j, dp) + np.einsum("kij,kj->ki", R_rear, lever_rear))
+    y = np.einsum("kji,kj->ki", R_k, p_k - P_rear)  # R_k^T (p_k - P_rear)
+    M = _P_YZ @ R_vb  # (2,3)
+    r = (y + front_b) @ M.T
+    Rk_T = np.swapaxes(R_k, 1, 2)
+    d_pose_k = np.concatenate([M @ skew(y), np.broadcast_to(M, (y.shape[0], 2, 3))], axis=2)
+    # dP_rear / d(theta_j) = -R_j [dp]x - earth R_j [dR rear_b]x ; / d(p_j) = R_j ; / d(v_j)
+    dP_theta_j = -R_j @ skew(dp) - R_rear @ skew(lever_rear)
+    dP_v_j = np.eye(3)[None] * tau[:, :, None] - skew(omega_ie_n)[None] * (tau**2)[:, :, None]
+    A = -M @ Rk_T  # (M,2,3): d r / d P_rear
+    d_pose_j = np.concatenate([A @ dP_theta_j, A @ R_j], axis=2)
+    return r, [d_pose_k, d_pose_j, A @ dP_v_j]
+
+
+def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: np.ndarray, keys_x: np.ndarray,
+                       keys_v: np.ndarray, omega_ie_n: np.ndarray):
+    """The factors of a :class:`~trackfusion.fusion.problem.FusionProblem` with an odometer on
+    keyframes ``t_key`` (K,) at IMU samples ``key_idx`` (K,); pos0_n (K,3) [m] the initial
+    positions (for gravity); keys_x, keys_v (K,) the pose and velocity keys of the keyframes;
+    omega_ie_n (3,) [rad/s] (zero when the Earth rate is switched off).
+
+    Returns ``(M, build)``: the number of factors and ``build(state) -> LinearBlocks`` at an
+    estimate with arrays ``R`` (K,3,3), ``p`` (K,3), ``v`` (K,3) (fusion/smoother.py ``_State``).
+    """
+    from .. import geodesy
+    from .factors import LinearBlocks
+    tr, st = problem.trolley, problem.factors.wheel_path
+    pairs = rear_times(t_key, problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
+    every = pairs.k % st.keyframe_step == 0
+    pairs = WheelPairs(pairs.k[every], pairs.j[every], pairs.tau_s[every])
+    k, j = pairs.k, pairs.j
+    dR, dp = body_deltas(problem.imu, key_idx[j], pairs.tau_s)
+    g_n = geodesy.gravity_n(pos0_n[j], problem.origin)
+    half = 0.5 * tr.wheelbase_m
+    front_b, rear_b = tr.lever_arm_b(np.array([half, 0.0, 0.0])), tr.lever_arm_b(np.array([-half, 0.0, 0.0]))
+    keys = [keys_x[k], keys_x[j], keys_v[j]]
+    sigma = np.full((k.size, 2), st.sigma_mm * 1e-3)
+
+    def build(state) -> LinearBlocks:
+        r, J = wheel_path_residual(state.R[k], state.p[k], state.R[j], state.p[j], state.v[j], pairs.tau_s,
+                                   dR, dp, g_n, omega_ie_n, front_b, rear_b, tr.R_vb)
+        return LinearBlocks(keys, J, r, sigma)
+
+    return k.size, build
