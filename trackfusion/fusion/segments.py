@@ -52,11 +52,15 @@ from ..workers import can_fork, run_forked, usable_cpus
 from .chunks import sub_problem
 from .problem import FusionProblem
 from .settings import SmootherSettings
+from .slow_pass import outside_priors
 from .smoother import SmootherResult, nearest_sample, smooth
 from .trajectory import DenseTrajectory, densify
 
 #: half-width of the blend window at a join, as a fraction of ``smoother.overlap_s``
 BLEND_FRACTION = 0.25
+
+#: segments take priors on their slow states from the data outside them (fusion/slow_pass.py)
+SLOW_PRIORS = True
 
 _KEY_ARRAYS = ("t_s", "key_idx", "R_nb", "pos_n", "vel_n", "gyro_bias_radps", "accel_bias_mps2", "odometer_scale")
 
@@ -124,10 +128,13 @@ class SegmentResult:
 
 
 def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentResult:
-    """Smooth one segment, densify and decimate its kept span (module docstring)."""
-    cpu = time.process_time()
+    """Smooth one segment with priors on its slow states from the data outside it
+    (fusion/slow_pass.py), densify and decimate its kept span (module docstring)."""
+    cpu, tic = time.process_time(), time.perf_counter()
+    priors = outside_priors(problem, seg.i0, seg.i1) if SLOW_PRIORS else None
+    slow_s = time.perf_counter() - tic
     sub = sub_problem(problem, seg.i0, seg.i1)
-    res = smooth(sub)
+    res = smooth(sub, slow_priors=priors)
     tic = time.perf_counter()
     t = res.t_s
     ka = max(int(np.searchsorted(t, seg.keep_t0, "right")) - 1, 0)
@@ -146,7 +153,7 @@ def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentR
     offset = int(np.searchsorted(problem.gnss.t_s, sub.imu.t_s[0], "left"))
     rejected = [{**r, "index": r["index"] + offset} for r in res.rejected_gnss]
     res = replace(res, **trimmed, rejected_gnss=rejected,
-                  timings_s={**res.timings_s, "densify_s": time.perf_counter() - tic,
+                  timings_s={"slow_states_s": slow_s, **res.timings_s, "densify_s": time.perf_counter() - tic,
                              "cpu_s": time.process_time() - cpu})
     return SegmentResult(res, rows, idx[sel])
 
