@@ -57,6 +57,8 @@ def main() -> None:
     ap.add_argument("--segments", type=int, default=1,
                     help="smooth in that many parallel segments (fusion/segments.py), here one after the other; "
                          "the stages then include the densification of the rows at 100 Hz, as the workers do it")
+    ap.add_argument("--no-slow-priors", action="store_true",
+                    help="segments: without the priors on their slow states (smoother.slow_priors: false)")
     args = ap.parse_args()
     prob = problem(args.scenario, args.passes, args.solve, args.seed)
     from trackfusion.fusion import segments, smoother
@@ -68,7 +70,8 @@ def main() -> None:
     try:
         if args.segments > 1:
             segments.can_fork = lambda n: False  # in turn, in this process: each segment's CPU seconds
-            prob = replace(prob, smoother=prob.smoother.model_copy(update={"workers": args.segments}))
+            prob = replace(prob, smoother=prob.smoother.model_copy(
+                update={"workers": args.segments, "slow_priors": not args.no_slow_priors}))
             res, _, info = segments.smooth_in_segments(prob, every=5)
             per_segment = [s["timings_s"] for s in info["segments"]]
         else:

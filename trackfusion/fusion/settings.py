@@ -188,7 +188,9 @@ class SmootherSettings(_Strict):
     ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
     segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
     forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
-    with two CPUs or more, else 1 (one batch).
+    with two CPUs or more, else 1 (one batch). ``slow_priors``: each segment's IMU biases and
+    odometer scale take priors from coarse solves of the data before and after it
+    (fusion/slow_pass.py), as one batch ties them to the rest of the run.
     """
 
     max_iterations: int = Field(10, ge=1)
@@ -197,6 +199,7 @@ class SmootherSettings(_Strict):
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
+    slow_priors: bool = True
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":

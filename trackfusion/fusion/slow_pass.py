@@ -23,11 +23,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import FusionError
 from ..registration.two_stage import decimated_imu
 from .chunks import sub_problem
 from .problem import FusionProblem
 from .slow_states import SlowPrior
-from .smoother import SmootherResult, smooth
+from .smoother import GATE_RELATIVE_TOLERANCE, SmootherResult, nearest_sample, smooth
 
 #: the flat prior's sigma, in units of the specification's, on the data after a segment
 FLAT_FACTOR = 1e3
@@ -37,7 +38,9 @@ FLAT_FACTOR = 1e3
 class SlowPassSettings:
     """coarse_spacing_s: keyframe spacing of the coarse solves [s]; imu_rate_hz: about the
     rate the IMU is block-averaged to for them [Hz]; min_piece_s: a piece of data outside a
-    segment shorter than this is not smoothed (no prior from it) [s]."""
+    segment shorter than this is not smoothed (no prior from it) [s]; gnss_spacing_s: the fixes
+    kept, the nearest to each time of a grid this far apart from the piece's start [s] (every
+    fix is a keyframe)."""
 
     coarse_spacing_s: float = 2.0
     imu_rate_hz: float = 25.0
@@ -46,7 +49,9 @@ class SlowPassSettings:
 
 
 def coarse_problem(problem: FusionProblem, settings: SlowPassSettings) -> FusionProblem:
-    """``problem`` on coarse keyframes (module docstring); its marginal sigmas are not needed."""
+    """``problem`` on coarse keyframes (module docstring), solved to the gating tolerance only
+    (smoother.py ``GATE_RELATIVE_TOLERANCE``: the slow states move by far less than their sigma
+    after it)."""
     rate_hz = 1.0 / float(np.median(np.diff(problem.imu.t_s)))
     m = max(1, int(round(rate_hz / settings.imu_rate_hz)))
     ratio = np.sqrt(settings.coarse_spacing_s / problem.keyframes.spacing_s)  # sigma scale of per-keyframe factors
@@ -57,13 +62,15 @@ def coarse_problem(problem: FusionProblem, settings: SlowPassSettings) -> Fusion
                                          "sigma_vertical_mm_per_s": vertical / ratio}),
         "zupt": fs.zupt.model_copy(update={"sigma_velocity_mm_per_s": fs.zupt.sigma_velocity_mm_per_s / ratio}),
         "odometer": fs.odometer.model_copy(update={"sigma_mm": fs.odometer.sigma_mm * ratio})})
+    imu = decimated_imu(problem.imu, m)
     g = problem.gnss
-    if g is not None and g.t_s.size > 1:  # at most one fix per gnss_spacing_s (each fix is a keyframe)
-        keep = np.r_[True, np.diff(np.floor((g.t_s - g.t_s[0]) / settings.gnss_spacing_s + 1e-6)) > 0]
+    if g is not None and g.t_s.size > 1:  # the fix nearest to each keyframe of the coarse grid (each fix is a keyframe)
+        grid = np.arange(imu.t_s[0], imu.t_s[-1] + settings.gnss_spacing_s, settings.gnss_spacing_s)
+        keep = np.unique(nearest_sample(g.t_s, grid))
         g = replace(g, t_s=g.t_s[keep], pos_n=g.pos_n[keep], cov_n=g.cov_n[keep], fix_quality=g.fix_quality[keep])
-    return replace(problem, imu=decimated_imu(problem.imu, m), factors=factors, gnss=g,
+    return replace(problem, imu=imu, factors=factors, gnss=g,
                    keyframes=problem.keyframes.model_copy(update={"spacing_s": settings.coarse_spacing_s}),
-                   smoother=problem.smoother.model_copy(update={"marginal_step_s": 1e9}))
+                   smoother=problem.smoother.model_copy(update={"relative_tolerance": GATE_RELATIVE_TOLERANCE}))
 
 
 def flat_prior(problem: FusionProblem, t_s: float) -> SlowPrior:
@@ -98,14 +105,24 @@ def _prior_from(res: SmootherResult, bias_segment_s: float, last: bool, start: b
 def outside_priors(problem: FusionProblem, i0: int, i1: int,
                    settings: SlowPassSettings = SlowPassSettings()) -> list[SlowPrior]:
     """The priors (0 to 2) on the slow states of the segment of IMU samples ``i0 .. i1`` of
-    ``problem`` from the data before and after it (module docstring)."""
+    ``problem`` from the data before and after it (module docstring). A side whose data is
+    shorter than ``settings.min_piece_s``, or cannot be smoothed on its own (a
+    :class:`~trackfusion.errors.FusionError`, e.g. no way to align it), gives no prior: the segment
+    then stands on its own data there, as without the priors."""
     t = problem.imu.t_s
     priors = []
     if t[i0] - t[0] >= settings.min_piece_s:  # the data before: its last states
-        before = smooth(coarse_problem(sub_problem(problem, 0, i0), settings), end_covariances=True)
-        priors.append(_prior_from(before, problem.keyframes.bias_segment_s, last=True, start=True))
+        try:
+            before = smooth(coarse_problem(sub_problem(problem, 0, i0), settings), end_covariances=True, sigmas=False)
+            priors.append(_prior_from(before, problem.keyframes.bias_segment_s, last=True, start=True))
+        except FusionError:
+            pass
     if t[-1] - t[i1] >= settings.min_piece_s:  # the data after: its first states
         piece = coarse_problem(sub_problem(problem, i1, t.size - 1), settings)
-        after = smooth(piece, slow_priors=[flat_prior(problem, float(t[i1]))], end_covariances=True)
-        priors.append(_prior_from(after, problem.keyframes.bias_segment_s, last=False, start=False))
+        try:
+            after = smooth(piece, slow_priors=[flat_prior(problem, float(t[i1]))], end_covariances=True,
+                           sigmas=False)
+            priors.append(_prior_from(after, problem.keyframes.bias_segment_s, last=False, start=False))
+        except FusionError:
+            pass
     return priors

@@ -698,7 +698,8 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
 
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
            hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
-           slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False) -> SmootherResult:
+           slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False,
+           sigmas: bool = True) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
 
@@ -709,7 +710,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     registration/two_stage.py) that the estimate starts from instead (:func:`_warm_start`).
     ``slow_priors``: priors on the bias and scale states of a time segment from the data outside
     it (fusion/segments.py, fusion/slow_states.py); with ``end_covariances`` the result carries the
-    marginal covariances of the first and last bias and scale states (``SmootherResult.end_cov``).
+    marginal covariances of the first and last bias and scale states (``SmootherResult.end_cov``);
+    without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
     """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -847,7 +849,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
     tree = _eliminate(gfg) if b.soft.keys else sol.tree
     state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
-    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s)
+    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
+        else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
     end_cov = None
     if end_covariances:  # by QR on the graph at the estimate (the Bayes tree's marginals of B and S are wrong here)
         end_gfg = gfg if gfg is not None and not b.soft.keys else _linearize(G, values, with_scale)
