@@ -72,9 +72,10 @@ def slow_prior_factors(priors: list[SlowPrior], t_key: np.ndarray, bias_seg: np.
     return out
 
 
-def replaces_start(priors: list[SlowPrior] | None) -> bool:
-    """True when one of ``priors`` stands for the data before the segment (:attr:`SlowPrior.start`)."""
-    return bool(priors) and any(p.start for p in priors)
+def replaces_start(priors: list[SlowPrior] | None, scale: bool = False) -> bool:
+    """True when one of ``priors`` stands for the data before the segment (:attr:`SlowPrior.start`)
+    and, with ``scale``, carries the odometer scale."""
+    return bool(priors) and any(p.start and (not scale or p.scale is not None) for p in priors)
 
 
 @dataclass(frozen=True)

@@ -428,7 +428,7 @@ class _Builder:
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
         if self.join is not None and self.join.scale is not None:  # the previous chunk's, then one step
             scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
-        if not replaces_start(self.slow):
+        if not replaces_start(self.slow, scale=True):
             self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
         for m in range(n_seg - 1):
