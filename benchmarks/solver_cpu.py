@@ -57,6 +57,8 @@ def main() -> None:
     ap.add_argument("--segments", type=int, default=1,
                     help="smooth in that many parallel segments (fusion/segments.py), here one after the other; "
                          "the stages then include the densification of the rows at 100 Hz, as the workers do it")
+    ap.add_argument("--no-slow-priors", action="store_true",
+                    help="segments: without the priors on their slow states (smoother.slow_priors: false)")
     ap.add_argument("--wheel-path", choices=["on", "off"], default=None,
                     help="switch factors.wheel_path on or off (default: as the pipeline.yaml; docs/wheel_path.md)")
     args = ap.parse_args()
@@ -73,7 +75,8 @@ def main() -> None:
     try:
         if args.segments > 1:
             segments.can_fork = lambda n: False  # in turn, in this process: each segment's CPU seconds
-            prob = replace(prob, smoother=prob.smoother.model_copy(update={"workers": args.segments}))
+            prob = replace(prob, smoother=prob.smoother.model_copy(
+                update={"workers": args.segments, "slow_priors": not args.no_slow_priors}))
             res, _, info = segments.smooth_in_segments(prob, every=5)
             per_segment = [s["timings_s"] for s in info["segments"]]
         else:

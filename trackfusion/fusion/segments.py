@@ -7,7 +7,11 @@ of equal duration (``N = smoother.workers``; fewer when a core would be shorter 
 plus ``overlap_s`` of data before and after it (clipped at the run's ends), each in its own
 forked process, all at once (:func:`trackfusion.workers.run_forked`). Unlike the sequential
 chunks of fusion/chunks.py nothing is handed over between segments: each is aligned, anchored
-and tied to ``n`` by its own GNSS fixes, so they are independent. Each worker also densifies its
+and tied to ``n`` by its own GNSS fixes, so they are independent. Its slow states (IMU biases,
+odometer scale) take priors from coarse solves of the data before and after it, which its worker
+runs first (fusion/slow_pass.py; ``smoother.slow_priors``): in one batch those states are tied to
+the rest of the run through their random walks, and half a run alone pins the along-track
+accelerometer bias (which trades against pitch) less well. Each worker also densifies its
 core and blend windows and decimates them to the output rate (global sample index a multiple
 of ``every``); it returns compact arrays (keyframe states, marginal sigmas, the decimated rows,
 counts; no GTSAM object) through a pipe.
@@ -41,7 +45,7 @@ the same time). Per-segment figures are in ``segments.segments``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -52,6 +56,7 @@ from ..workers import can_fork, run_forked, usable_cpus
 from .chunks import sub_problem
 from .problem import FusionProblem
 from .settings import SmootherSettings
+from .slow_pass import outside_priors
 from .smoother import SmootherResult, nearest_sample, smooth
 from .trajectory import DenseTrajectory, densify
 
@@ -121,13 +126,17 @@ class SegmentResult:
     res: SmootherResult
     rows: DenseTrajectory
     row_idx: np.ndarray
+    slow_priors: list[str] = field(default_factory=list)  # "before" / "after": the sides that gave priors
 
 
 def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentResult:
-    """Smooth one segment, densify and decimate its kept span (module docstring)."""
-    cpu = time.process_time()
+    """Smooth one segment with priors on its slow states from the data outside it
+    (fusion/slow_pass.py), densify and decimate its kept span (module docstring)."""
+    cpu, tic = time.process_time(), time.perf_counter()
+    priors = outside_priors(problem, seg.i0, seg.i1) if problem.smoother.slow_priors else None
+    slow_s = time.perf_counter() - tic
     sub = sub_problem(problem, seg.i0, seg.i1)
-    res = smooth(sub)
+    res = smooth(sub, slow_priors=priors)
     tic = time.perf_counter()
     t = res.t_s
     ka = max(int(np.searchsorted(t, seg.keep_t0, "right")) - 1, 0)
@@ -146,9 +155,9 @@ def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentR
     offset = int(np.searchsorted(problem.gnss.t_s, sub.imu.t_s[0], "left"))
     rejected = [{**r, "index": r["index"] + offset} for r in res.rejected_gnss]
     res = replace(res, **trimmed, rejected_gnss=rejected,
-                  timings_s={**res.timings_s, "densify_s": time.perf_counter() - tic,
+                  timings_s={"slow_states_s": slow_s, **res.timings_s, "densify_s": time.perf_counter() - tic,
                              "cpu_s": time.process_time() - cpu})
-    return SegmentResult(res, rows, idx[sel])
+    return SegmentResult(res, rows, idx[sel], ["before" if p.start else "after" for p in priors or []])
 
 
 _JOB: tuple[FusionProblem, list[Segment], int] | None = None  # what a forked worker reads (no pickling)
@@ -192,7 +201,8 @@ def smooth_in_segments(problem: FusionProblem, every: int, progress: Callable[[s
     res.timings_s["segments_s"] = wall_s
     info = {"count": len(segments), "workers": len(segments) if forked else 1, "overlap_s": sm.overlap_s,
             "blend_half_width_s": h, "joins": seams,
-            "segments": [_segment_info(problem, seg, p.res) for seg, p in zip(segments, parts)]}
+            "segments": [{**_segment_info(problem, seg, p.res), "slow_priors": p.slow_priors}
+                         for seg, p in zip(segments, parts)]}
     return res, rows, info
 
 
@@ -356,7 +366,8 @@ def _levelled(p: SegmentResult, correction: Callable) -> SegmentResult:
     c_rows, rate = correction(p.rows.t_s)
     c_key, _ = correction(p.res.t_s)
     rows = DenseTrajectory(p.rows.t_s, p.rows.R_nb, p.rows.pos_n + c_rows, p.rows.vel_n + rate)
-    return SegmentResult(replace(p.res, pos_n=p.res.pos_n + c_key, vel_n=p.res.vel_n + rate), rows, p.row_idx)
+    return SegmentResult(replace(p.res, pos_n=p.res.pos_n + c_key, vel_n=p.res.vel_n + rate), rows, p.row_idx,
+                         p.slow_priors)
 
 
 def stitch(parts: list[SegmentResult], joins: np.ndarray, h: float
