@@ -34,6 +34,7 @@ def _run(d, chunk_s):
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
     # workers 1: the batch is one batch (with this overlap it would be cut into parallel segments)
     data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S, workers=1)
+    data["factors"]["wheel_path"] = False  # chunked runs leave it out (test_chunked_run_leaves_the_wheel_path_out)
     return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
 
 
@@ -103,6 +104,21 @@ def test_chunked_sigmas_equal_the_batch_ones(runs):
         assert 0.8 < ratio.min() and ratio.max() < 1.25, (c, ratio.min(), ratio.max())
 
 
+def test_chunked_run_leaves_the_wheel_path_out(runs, tmp_path):
+    """As simulated (wheel path on), a run in chunks is smoothed without it and says so."""
+    d = runs[0]
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    assert data["factors"]["wheel_path"] is True
+    data.setdefault("smoother", {}).update(chunk_s=CHUNK_S, overlap_s=OVERLAP_S, workers=1)
+    data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
+    said = []
+    res = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out", progress=said.append)
+    assert "wheel_path" not in res.metrics["factors"]
+    assert "hand-over" in res.metrics["factors_left_out"]["wheel_path"]
+    assert any(m.startswith("factors.wheel_path left out") for m in said)
+    np.testing.assert_array_equal(res.trajectory["e_m"], runs[2].trajectory["e_m"])
+
+
 # --- long runs stream their output (fusion/output_rate.py, sensors/fileio.py CsvTableWriter) ---
 
 def test_streamed_trajectory_csv_is_the_whole_run_table(runs):
@@ -114,7 +130,9 @@ def test_streamed_trajectory_csv_is_the_whole_run_table(runs):
     from trackfusion.sensors.mcap_log import read_log
 
     d, _, chunked = runs
-    pipeline = parse_pipeline(yaml.safe_load((d / "pipeline.yaml").read_text()), str(d / "pipeline.yaml"), d)
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    data["factors"]["wheel_path"] = False
+    pipeline = parse_pipeline(data, str(d / "pipeline.yaml"), d)
     problem, _ = build_problem(pipeline, read_log(d / "log.mcap"), lambda _m: None)
     every = _decimation(1.0 / np.median(np.diff(problem.imu.t_s)), pipeline.config.outputs.trajectory_rate_hz)
     res, dense = smooth_in_chunks(problem, CHUNK_S, OVERLAP_S, every)

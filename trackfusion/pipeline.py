@@ -455,6 +455,10 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
                           f"{np.ceil(duration_s):.0f} (or null)")
+    if chunked and problem.factors.wheel_path.enabled:  # fusion/chunks.py leaves it out
+        from .fusion.chunks import WHEEL_PATH_LEFT_OUT
+        info["factors_left_out"] = {"wheel_path": WHEEL_PATH_LEFT_OUT}
+        say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}")
     with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's

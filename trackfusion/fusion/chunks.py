@@ -42,6 +42,18 @@ def join_times(t0_s: float, t1_s: float, chunk_s: float, overlap_s: float) -> np
     return joins[joins < t1_s - overlap_s]
 
 
+#: why a run in chunks is smoothed without the wheel-path factor (metrics.json ``factors_left_out``)
+WHEEL_PATH_LEFT_OUT = ("the chunk hand-over does not carry it yet (a seam at the joins: docs/wheel_path.md); "
+                       "set smoother.chunk_s to null or above the run's duration to keep it")
+
+
+def without_wheel_path(problem: FusionProblem) -> FusionProblem:
+    """``problem`` with ``factors.wheel_path`` switched off (see :data:`WHEEL_PATH_LEFT_OUT`)."""
+    fs = problem.factors
+    return replace(problem, factors=fs.model_copy(update={"wheel_path": fs.wheel_path.model_copy(
+        update={"enabled": False})}))
+
+
 def _slice_time(t_s: np.ndarray, a_s: float, b_s: float) -> slice:
     return slice(int(np.searchsorted(t_s, a_s, "left")), int(np.searchsorted(t_s, b_s, "right")))
 
@@ -100,11 +112,13 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
     Returns the keyframe result of the whole run (arrays concatenated over the chunk cores;
     key_idx global; counts, costs, iterations and timings summed; the alignment of the first
     chunk) and the trajectory at every ``every``-th IMU sample (global index multiple of it).
+    The wheel-path factor is left out (:data:`WHEEL_PATH_LEFT_OUT`).
     With ``on_dense``, each chunk's piece of that trajectory is passed instead as
     ``on_dense(piece, result_so_far, last)`` (``result_so_far``: the keyframe result of the
     chunks done, as returned at the end) and None is returned for it.
     """
     say = progress or (lambda _m: None)
+    problem = without_wheel_path(problem)  # not handed over between chunks yet
     imu = problem.imu
     joins = join_times(float(imu.t_s[0]), float(imu.t_s[-1]), chunk_s, overlap_s)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if problem.factors.imu.earth_rate else np.zeros(3)

@@ -61,7 +61,9 @@ def coarse_problem(problem: FusionProblem, settings: SlowPassSettings) -> Fusion
         "nhc": fs.nhc.model_copy(update={"sigma_lateral_mm_per_s": lateral / ratio,
                                          "sigma_vertical_mm_per_s": vertical / ratio}),
         "zupt": fs.zupt.model_copy(update={"sigma_velocity_mm_per_s": fs.zupt.sigma_velocity_mm_per_s / ratio}),
-        "odometer": fs.odometer.model_copy(update={"sigma_mm": fs.odometer.sigma_mm * ratio})})
+        "odometer": fs.odometer.model_copy(update={"sigma_mm": fs.odometer.sigma_mm * ratio}),
+        # a wheelbase is shorter than one coarse keyframe interval: no pair would form
+        "wheel_path": fs.wheel_path.model_copy(update={"enabled": False})})
     imu = decimated_imu(problem.imu, m)
     g = problem.gnss
     if g is not None and g.t_s.size > 1:  # the fix nearest to each keyframe of the coarse grid (each fix is a keyframe)

@@ -327,13 +327,17 @@ class SimulationReport:
 def pipeline_for(sim: Simulation) -> dict[str, Any]:
     """The pipeline a simulated run should be processed with (paths relative to its folder;
     schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md). The NHC sigmas are
-    what the rigid simulated trolley really does on its rails (:mod:`.nhc_sigma`)."""
+    what the rigid simulated trolley really does on its rails (:mod:`.nhc_sigma`); the wheel-path
+    factor is on in the GNSS + odometer surveys (not yet measured with total stations or without
+    GNSS: docs/wheel_path.md)."""
     cfg = sim.config
     imu_spec = _imu_spec(cfg.imu)
     nhc = nhc_sigmas_mm_per_s(cfg, sim.motion.chainage_range_m, imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.rate_hz)
     factors = {"imu": True, "zupt": True,
                "nhc": {f"sigma_{axis}_mm_per_s": float(f"{max(sigma, 1e-3):.3g}") for axis, sigma in nhc.items()},
                "odometer": cfg.odometer is not None,
+               # the rigid trolley's rear wheel runs where its front wheel ran (fusion/wheel_path.py)
+               "wheel_path": cfg.odometer is not None and cfg.gnss is not None and cfg.total_stations is None,
                "gnss": cfg.gnss is not None, "inclinometer": cfg.inclinometer is not None,
                "total_stations": cfg.total_stations is not None}
     sensors: dict[str, Any] = {"imu": imu_spec.model_dump()}
