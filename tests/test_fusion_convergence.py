@@ -33,7 +33,6 @@ def test_no_claim_before_three_steps_or_when_slow():
     assert _history([1e-3, 1e-4, 0.0]).remaining_m() == 0.0
 
 
-def test_default_tolerance_only_in_total_station_runs():
-    assert C.step_tolerance_m(None, True) == pytest.approx(C.STATION_RUN_STEP_TOLERANCE_MM * 1e-3)
-    assert C.step_tolerance_m(None, False) == 0.0
-    assert C.step_tolerance_m(0.05, False) == pytest.approx(5e-5)
+def test_default_tolerance():
+    from trackfusion.fusion.settings import SmootherSettings
+    assert SmootherSettings().step_tolerance_mm == C.DEFAULT_STEP_TOLERANCE_MM

@@ -101,9 +101,9 @@ def test_step_rule_gives_the_cost_criterions_solution_in_fewer_iterations(bridge
     def solve(tol_mm):
         return smoother.smooth(replace(problem, smoother=problem.smoother.model_copy(update={"step_tolerance_mm": tol_mm})))
 
-    full, fast = solve(0.0), solve(None)  # the cost criterion alone; the default (the step rule on)
+    full, fast = solve(0.0), solve(convergence.DEFAULT_STEP_TOLERANCE_MM)  # the cost criterion alone; the default (the step rule on)
     assert fast.iterations < full.iterations
-    assert np.abs(fast.pos_n - full.pos_n).max() < convergence.STATION_RUN_STEP_TOLERANCE_MM * 1e-3
+    assert np.abs(fast.pos_n - full.pos_n).max() < convergence.DEFAULT_STEP_TOLERANCE_MM * 1e-3
     q = fast.station_states - full.station_states
     assert np.abs(q[:, 6]).max() < 1e-5  # clock offsets [s]: 0.5 % of the 2 ms target
     assert np.abs(q[:, :3]).max() < 0.01 / 206265  # station rotations: 2 % of the 0.5" tilt target

@@ -23,9 +23,9 @@ import numpy as np
 
 #: step ratio above which the geometric tail is not trusted (slow or erratic convergence)
 RHO_MAX = 0.5
-#: default ``smoother.step_tolerance_mm`` of total-station runs (1 % of the bridge's 2 mm
-#: round-trip target; runs without total stations keep the cost criterion alone)
-STATION_RUN_STEP_TOLERANCE_MM = 0.02
+#: default ``smoother.step_tolerance_mm`` (1 % of the bridge's 2 mm round-trip target; on the
+#: GNSS hour it cuts an iteration and moves the 5 m relative accuracy by 1e-5 mm: docs/solver_speed.md)
+DEFAULT_STEP_TOLERANCE_MM = 0.02
 
 
 @dataclass
@@ -57,11 +57,3 @@ class StepHistory:
 
     def copy(self) -> "StepHistory":
         return StepHistory(list(self.steps_m))
-
-
-def step_tolerance_m(step_tolerance_mm: float | None, with_total_stations: bool) -> float:
-    """The step rule's tolerance [m] (0: off). ``step_tolerance_mm`` None: the default,
-    :data:`STATION_RUN_STEP_TOLERANCE_MM` in runs fusing total stations, off otherwise."""
-    if step_tolerance_mm is None:
-        return STATION_RUN_STEP_TOLERANCE_MM * 1e-3 if with_total_stations else 0.0
-    return step_tolerance_mm * 1e-3

@@ -209,13 +209,12 @@ class SmootherSettings(_Strict):
     the run.
 
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
-    from the rate at which the steps shrink, is below this (fusion/convergence.py); null: 0.02 mm
-    in runs fusing total stations, off (0) otherwise.
+    from the rate at which the steps shrink, is below this (fusion/convergence.py); 0: off.
     """
 
     max_iterations: int = Field(10, ge=1)
     relative_tolerance: float = Field(1e-7, gt=0)
-    step_tolerance_mm: float | None = Field(None, ge=0)
+    step_tolerance_mm: float = Field(0.02, ge=0)
     marginal_step_s: float = Field(1.0, gt=0)
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)

@@ -25,7 +25,7 @@ from ..errors import FusionError
 from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
 from .alignment import Alignment, back_to_start, initial_alignment
-from .convergence import StepHistory, step_tolerance_m
+from .convergence import StepHistory
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
 from .slow_states import EndCovariances, SlowPrior, replaces_start, slow_end_covariances, slow_prior_factors
@@ -835,7 +835,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     cost0 = None
     gating = gnss is not None or prisms is not None
     rtol = problem.smoother.relative_tolerance
-    step_tol = step_tolerance_m(problem.smoother.step_tolerance_mm, prisms is not None)
+    step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
