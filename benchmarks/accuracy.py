@@ -37,6 +37,7 @@ VARIANTS = {
     "gnss": {"nhc": False, "odometer": False, "wheel_path": False},
     "gnss+nhc": {"odometer": False, "wheel_path": False},
     "gnss+nhc+odometer": {"wheel_path": False},
+    "default (+ wheel path)": {},  # as simulated: the pipeline.yaml of the scenario
     "full, white GNSS": {"gnss": {"correlated_sigma_h_mm": 0.0, "correlated_sigma_v_mm": 0.0}},
     "full, 600 s chunks": {"smoother": {"chunk_s": 600.0, "overlap_s": 120.0}},  # no wheel path in chunks
     # the variants above run in 2 parallel segments on a machine with 2 CPUs (fusion/segments.py)
