@@ -18,3 +18,14 @@ def errors_against_truth(d, tab):
     ref = hermite_interpolate(truth["t_s"], pos_t, vel_t, tab["t_s"])
     return (np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")]) - ref,
             np.interp(tab["t_s"], truth["t_s"], truth["chainage_m"]))
+
+
+def short_open_track_problem(d, seed):
+    """The fusion problem of a short ``open-track-gnss`` survey (:data:`SHORT_OPEN_TRACK`)
+    simulated with ``seed`` into folder ``d``, as ``trackfusion run`` builds it."""
+    from trackfusion import pipeline as P
+    from trackfusion.simulation.scenarios import simulate_to_dir
+    simulate_to_dir("open-track-gnss", d, seed=seed, overrides=SHORT_OPEN_TRACK)
+    pl = P.load_pipeline(d / "pipeline.yaml")
+    log, _ = P._read(pl)
+    return P.build_problem(pl, log, lambda _m: None)[0]

@@ -8,20 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from trackfusion import pipeline as P
 from trackfusion.fusion import smoother
-from trackfusion.simulation.scenarios import simulate_to_dir
 
-from surveys import SHORT_OPEN_TRACK
+from surveys import short_open_track_problem
 
 
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory):
-    d = tmp_path_factory.mktemp("marginals")
-    simulate_to_dir("open-track-gnss", d, seed=3, overrides=SHORT_OPEN_TRACK)
-    pl = P.load_pipeline(d / "pipeline.yaml")
-    log, _ = P._read(pl)
-    return P.build_problem(pl, log, lambda _m: None)[0]
+    return short_open_track_problem(tmp_path_factory.mktemp("marginals"), 3)
 
 
 def test_marginals_of_the_last_iteration_equal_a_fresh_linearisation(problem, monkeypatch):

@@ -22,12 +22,10 @@ import gtsam
 import numpy as np
 import pytest
 
-from trackfusion import pipeline as P
 from trackfusion.fusion import segments, slow_pass, smoother
 from trackfusion.fusion.slow_states import SlowPrior, replaces_start, slow_prior_factors
-from trackfusion.simulation.scenarios import simulate_to_dir
 
-from surveys import SHORT_OPEN_TRACK
+from surveys import short_open_track_problem
 
 UG = 9.80665e-6
 SETTINGS = slow_pass.SlowPassSettings()
@@ -35,11 +33,7 @@ SETTINGS = slow_pass.SlowPassSettings()
 
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory):
-    d = tmp_path_factory.mktemp("slow-priors")
-    simulate_to_dir("open-track-gnss", d, seed=4, overrides=SHORT_OPEN_TRACK)
-    pl = P.load_pipeline(d / "pipeline.yaml")
-    log, _ = P._read(pl)
-    prob = P.build_problem(pl, log, lambda _m: None)[0]
+    prob = short_open_track_problem(tmp_path_factory.mktemp("slow-priors"), 4)
     return replace(prob, smoother=prob.smoother.model_copy(update={"overlap_s": 30.0, "workers": 2}))
 
 
