@@ -34,7 +34,7 @@ SETTINGS = slow_pass.SlowPassSettings()
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory):
     prob = short_open_track_problem(tmp_path_factory.mktemp("slow-priors"), 4)
-    return replace(prob, smoother=prob.smoother.model_copy(update={"overlap_s": 30.0, "workers": 2}))
+    return replace(prob, smoother=prob.smoother.model_copy(update={"overlap_s": 30.0, "workers": 2, "slow_priors": True}))
 
 
 @pytest.fixture(scope="module")
