@@ -71,8 +71,9 @@ class WheelPathSettings(_Factor):
     wheelbase of odometer distance later (lateral and vertical; fusion/wheel_path.py,
     docs/wheel_path.md). Used when there is an odometer; ``sigma_mm`` per axis; one factor at
     every ``keyframe_step``-th keyframe (the front wheel's; 2: the hour's CPU cost within 2 s).
-    Opt-in: with it, the chunk and segment joins no longer match the (much better) accuracy
-    inside them (docs/wheel_path.md, "Not done")."""
+    Off by default; the pipelines the simulator writes for GNSS + odometer surveys and
+    configs/open-track-gnss.yaml and curved-line.yaml switch it on; runs smoothed in chunks leave
+    it out (fusion/chunks.py: the hand-over does not carry it yet; docs/wheel_path.md)."""
 
     enabled: bool = False
     sigma_mm: float = Field(0.01, gt=0)
