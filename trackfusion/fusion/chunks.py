@@ -87,7 +87,7 @@ def _decimated(dense: DenseTrajectory, first_index: int, every: int, skip_first:
     idx = first_index + np.arange(dense.t_s.size)
     keep = idx % every == 0
     keep[0] &= not skip_first
-    return DenseTrajectory(dense.t_s[keep], dense.R_nb[keep], dense.pos_n[keep], dense.vel_n[keep])
+    return dense.select(keep)
 
 
 def _core(res: SmootherResult, k_end: int, k_start: int, t_lo: float) -> dict[str, np.ndarray]:
@@ -159,8 +159,7 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
             on_dense(piece, _combined(results, parts, rejected), last)
     if on_dense is not None:
         return _combined(results, parts, rejected), None
-    return _combined(results, parts, rejected), DenseTrajectory(
-        *(np.concatenate([getattr(d, n) for d in dense_parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+    return _combined(results, parts, rejected), DenseTrajectory.concatenate(dense_parts)
 
 
 def _summary(res: SmootherResult) -> SmootherResult:

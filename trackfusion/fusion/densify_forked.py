@@ -39,9 +39,7 @@ def _part(i: int) -> DenseTrajectory:
     imu, key_idx, *per_key, omega_ie_n = args
     s = slice(a, b + 1)
     d = densify(imu, key_idx[s], *(x[s] for x in per_key), omega_ie_n, block=BLOCK)
-    if b == key_idx.size - 1:
-        return d
-    return DenseTrajectory(d.t_s[:-1], d.R_nb[:-1], d.pos_n[:-1], d.vel_n[:-1])  # the next part starts there
+    return d if b == key_idx.size - 1 else d.select(slice(None, -1))  # the next part starts there
 
 
 def densify_forked(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray,
@@ -59,4 +57,4 @@ def densify_forked(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: n
         parts = run_forked(_part, len(bounds))
     finally:
         _JOB = None
-    return DenseTrajectory(*(np.concatenate([getattr(d, n) for d in parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+    return DenseTrajectory.concatenate(parts)

@@ -84,14 +84,6 @@ class _Rows:
         return {name: a[:self.n] for name, a in self.arrays.items()}
 
 
-def _concat(a: DenseTrajectory, b: DenseTrajectory) -> DenseTrajectory:
-    return DenseTrajectory(*(np.concatenate([getattr(a, n), getattr(b, n)]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
-
-
-def _part(d: DenseTrajectory, s: slice) -> DenseTrajectory:
-    return DenseTrajectory(d.t_s[s], d.R_nb[s], d.pos_n[s], d.vel_n[s])
-
-
 class StreamedTrajectory:
     """trajectory.csv rows of a run smoothed in chunks, made chunk by chunk (module docstring).
 
@@ -119,12 +111,12 @@ class StreamedTrajectory:
         """Rows of ``dense`` up to the last marginal of ``so_far`` (all of them when ``last``);
         the rest waits for the next chunk, whose first marginal its sigmas interpolate towards."""
         if self._pending is not None:
-            dense = _concat(self._pending, dense)
+            dense = DenseTrajectory.concatenate([self._pending, dense])
         n_ready = dense.t_s.size if last else int(np.searchsorted(dense.t_s, so_far.sigma_t_s[-1], "right"))
-        self._pending = _part(dense, slice(n_ready, None)) if n_ready < dense.t_s.size else None
+        self._pending = dense.select(slice(n_ready, None)) if n_ready < dense.t_s.size else None
         if n_ready == 0:
             return
-        ready = _part(dense, slice(0, n_ready))
+        ready = dense.select(slice(0, n_ready))
         chainage = chainage_along(ready, so_far, self.odometer, self.axis_b, self._before)
         self._before = (ready.pos_n[-1].copy(), ready.R_nb[-1].copy(), float(chainage[-1]))
         table = trajectory_table(ready, so_far, chainage, 1)

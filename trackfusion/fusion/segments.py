@@ -147,7 +147,7 @@ def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentR
                     res.accel_bias_mps2[kk], geodesy.gravity_n(res.pos_n[kk], problem.origin), omega_ie_n)
     idx = seg.i0 + int(res.key_idx[ka]) + np.arange(dense.t_s.size)
     sel = (idx % every == 0) & (dense.t_s >= seg.keep_t0) & (dense.t_s <= seg.keep_t1)
-    rows = DenseTrajectory(dense.t_s[sel], dense.R_nb[sel], dense.pos_n[sel], dense.vel_n[sel])
+    rows = dense.select(sel)
     del dense
     keep = (t >= seg.keep_t0) & (t <= seg.keep_t1)
     trimmed = {name: getattr(res, name)[keep] for name in _KEY_ARRAYS if getattr(res, name) is not None}
@@ -249,7 +249,7 @@ def _blend_rows(a: DenseTrajectory, b: DenseTrajectory, w: np.ndarray, dw: np.nd
 
 
 def _rows_part(d: DenseTrajectory, m: np.ndarray) -> DenseTrajectory:
-    return DenseTrajectory(d.t_s[m], d.R_nb[m], d.pos_n[m], d.vel_n[m])
+    return d.select(m)
 
 
 def _seam(a: DenseTrajectory, b: DenseTrajectory, join_s: float) -> dict[str, Any]:
@@ -280,8 +280,7 @@ def _stitch_rows(parts: list[SegmentResult], joins: np.ndarray, h: float
         w, dw = blend_weight(a.t_s, joins[s], h)
         seams.append(_seam(a, b, joins[s]))
         pieces.append(_blend_rows(a, b, w, dw))
-    return DenseTrajectory(*(np.concatenate([getattr(d, n) for d in pieces])
-                             for n in ("t_s", "R_nb", "pos_n", "vel_n"))), seams
+    return DenseTrajectory.concatenate(pieces), seams
 
 
 def _key_part(res: SmootherResult, m: np.ndarray) -> dict[str, np.ndarray]:

@@ -247,14 +247,15 @@ class _Builder:
         if self.join is not None:  # the previous chunk's segment, then one random-walk step
             bias0 = gtsam.imuBias.ConstantBias(self.join.bias[:3], self.join.bias[3:])
             sig = np.sqrt(self.join.bias_var + rw_var)
-        if not replaces_start(self.slow):  # else the data before the segment stands for it (slow_priors)
+        replaced = replaces_start(self.slow)  # the data before the segment stands for it (slow_priors)
+        if not replaced:
             self.g.add(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_seg = int(self.bias_seg[-1]) + 1
         rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(rw_var))
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorConstantBias(B(m), B(m + 1), gtsam.imuBias.ConstantBias(), rw))
         self._count("imu", len(self.pims))
-        self._count("bias_prior", 0 if replaces_start(self.slow) else 1)
+        self._count("bias_prior", 0 if replaced else 1)
         self._count("bias_random_walk", n_seg - 1)
 
     def anchor(self, absolute: bool) -> None:

@@ -28,6 +28,15 @@ class DenseTrajectory:
     pos_n: np.ndarray
     vel_n: np.ndarray
 
+    @classmethod
+    def concatenate(cls, parts: "list[DenseTrajectory]") -> "DenseTrajectory":
+        """The parts one after the other (in time order)."""
+        return cls(*(np.concatenate([getattr(d, n) for d in parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+
+    def select(self, sel) -> "DenseTrajectory":
+        """The samples ``sel`` (a slice, an index array or a boolean mask over the N samples)."""
+        return DenseTrajectory(self.t_s[sel], self.R_nb[sel], self.pos_n[sel], self.vel_n[sel])
+
 
 def _padded(key_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Sample index (K-1, m) of offset j=1..m in each interval, the valid mask, and m."""
@@ -55,9 +64,8 @@ def densify(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarr
         s = slice(a, min(a + block, key_idx.size - 1) + 1)
         d = _densify_block(imu, dt, f_all, key_idx[s], R_nb[s], pos_n[s], vel_n[s], gyro_bias[s],
                            accel_bias[s], gravity_n[s], omega_ie_n)
-        parts.append(d if s.stop == key_idx.size else DenseTrajectory(d.t_s[:-1], d.R_nb[:-1], d.pos_n[:-1],
-                                                                         d.vel_n[:-1]))
-    return DenseTrajectory(*(np.concatenate([getattr(d, n) for d in parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+        parts.append(d if s.stop == key_idx.size else d.select(slice(None, -1)))  # the next block starts there
+    return DenseTrajectory.concatenate(parts)
 
 
 def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n):
