@@ -22,17 +22,44 @@ def skew(v) -> np.ndarray:
     ], -2)
 
 
-def so3_exp(phi) -> np.ndarray:
-    """Rotation matrix of rotation vector ``phi`` [rad], shape (..., 3) -> (..., 3, 3) (Rodrigues)."""
-    phi = np.asarray(phi, dtype=float)
-    theta2 = np.sum(phi * phi, axis=-1)[..., None, None]
-    theta = np.sqrt(theta2)
+def _rodrigues_ab(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``theta^2``, ``a = sin(theta)/theta`` and ``b = (1 - cos(theta))/theta^2`` of rotation
+    vectors (..., 3) [rad], each (...,), with their series below theta = 1e-6 rad."""
+    theta2 = np.einsum("...i,...i->...", phi, phi)
     small = theta2 < 1e-12
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / np.where(small, 1.0, theta2))
-    K = skew(phi)
-    return np.eye(3) + a * K + b * (K @ K)
+    theta = np.sqrt(np.where(small, 1.0, theta2))
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(theta) / theta)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(theta)) / (theta * theta))
+    return theta2, a, b
+
+
+def so3_exp(phi) -> np.ndarray:
+    """Rotation matrix of rotation vector ``phi`` [rad], shape (..., 3) -> (..., 3, 3) (Rodrigues:
+    ``R = (1 - b theta^2) I + a [phi]x + b phi phi^T``, a and b of :func:`_rodrigues_ab`)."""
+    phi = np.asarray(phi, dtype=float)
+    theta2, a, b = _rodrigues_ab(phi)
+    R = b[..., None, None] * phi[..., :, None] * phi[..., None, :]
+    c = 1.0 - b * theta2
+    ax, ay, az = (a * phi[..., i] for i in range(3))
+    R[..., 0, 0] += c
+    R[..., 1, 1] += c
+    R[..., 2, 2] += c
+    R[..., 0, 1] -= az
+    R[..., 1, 0] += az
+    R[..., 0, 2] += ay
+    R[..., 2, 0] -= ay
+    R[..., 1, 2] -= ax
+    R[..., 2, 1] += ax
+    return R
+
+
+def so3_exp_rotate(phi, x) -> np.ndarray:
+    """``so3_exp(phi) @ x`` for vectors x, shape (..., 3) each, without forming the matrices:
+    ``x + a phi x x + b phi x (phi x x)``."""
+    phi, x = np.asarray(phi, dtype=float), np.asarray(x, dtype=float)
+    _, a, b = _rodrigues_ab(phi)
+    px = np.cross(phi, x)
+    return x + a[..., None] * px + b[..., None] * np.cross(phi, px)
 
 
 def so3_log(R) -> np.ndarray:

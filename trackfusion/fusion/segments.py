@@ -144,9 +144,11 @@ def smooth_segment(problem: FusionProblem, seg: Segment, every: int) -> SegmentR
     kk = slice(ka, kb + 1)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if problem.factors.imu.earth_rate else np.zeros(3)
     dense = densify(sub.imu, res.key_idx[kk], res.R_nb[kk], res.pos_n[kk], res.vel_n[kk], res.gyro_bias_radps[kk],
-                    res.accel_bias_mps2[kk], geodesy.gravity_n(res.pos_n[kk], problem.origin), omega_ie_n)
-    idx = seg.i0 + int(res.key_idx[ka]) + np.arange(dense.t_s.size)
-    sel = (idx % every == 0) & (dense.t_s >= seg.keep_t0) & (dense.t_s <= seg.keep_t1)
+                    res.accel_bias_mps2[kk], geodesy.gravity_n(res.pos_n[kk], problem.origin), omega_ie_n,
+                    every=every, index_offset=seg.i0)  # the rows of the problem's samples i % every == 0
+    idx = seg.i0 + np.arange(int(res.key_idx[ka]), int(res.key_idx[kb]) + 1)
+    idx = idx[idx % every == 0]
+    sel = (dense.t_s >= seg.keep_t0) & (dense.t_s <= seg.keep_t1)
     rows = dense.select(sel)
     del dense
     keep = (t >= seg.keep_t0) & (t <= seg.keep_t1)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rotations import so3_exp, so3_log
+from ..rotations import skew, so3_exp, so3_exp_rotate, so3_log
 from ..sensors.types import ImuData
 from .preintegration import sculling_compensated
 
@@ -50,66 +50,90 @@ def _padded(key_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
 
 def densify(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray,
             gyro_bias: np.ndarray, accel_bias: np.ndarray, gravity_n: np.ndarray,
-            omega_ie_n: np.ndarray, block: int = 2000) -> DenseTrajectory:
+            omega_ie_n: np.ndarray, block: int = 2000, every: int = 1, index_offset: int = 0) -> DenseTrajectory:
     """Blend forward and backward integration between keyframes.
 
     key_idx (K,) keyframe sample indices; R_nb (K,3,3), pos_n, vel_n, gyro_bias [rad/s],
     accel_bias [m/s^2], gravity_n [m/s^2] each (K,3) at the keyframes; omega_ie_n (3,) [rad/s].
-    Returns the states at every IMU sample from ``key_idx[0]`` to ``key_idx[-1]``; works on
-    ``block`` intervals at a time to bound memory.
+    Returns the states at every IMU sample from ``key_idx[0]`` to ``key_idx[-1]``, or with
+    ``every`` > 1 only at the samples i with ``(index_offset + i) % every == 0`` (the same
+    values: the integration still steps through every sample); works on ``block`` intervals
+    at a time to bound memory.
     """
     dt, f_all = sculling_compensated(imu)
     parts = []
     for a in range(0, key_idx.size - 1, block):
         s = slice(a, min(a + block, key_idx.size - 1) + 1)
-        d = _densify_block(imu, dt, f_all, key_idx[s], R_nb[s], pos_n[s], vel_n[s], gyro_bias[s],
-                           accel_bias[s], gravity_n[s], omega_ie_n)
-        parts.append(d if s.stop == key_idx.size else d.select(slice(None, -1)))  # the next block starts there
+        parts.append(_densify_block(imu, dt, f_all, key_idx[s], R_nb[s], pos_n[s], vel_n[s], gyro_bias[s],
+                                    accel_bias[s], gravity_n[s], omega_ie_n, every, index_offset))
+    if (index_offset + key_idx[-1]) % every == 0:
+        parts.append(DenseTrajectory(imu.t_s[key_idx[-1:]], R_nb[-1:], pos_n[-1:], vel_n[-1:]))
     return DenseTrajectory.concatenate(parts)
 
 
-def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n):
+def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n,
+                   every: int, index_offset: int) -> DenseTrajectory:
+    """:func:`densify` of one block of intervals (its keyframe arrays sliced to the block), up
+    to and without the block's last keyframe.
+
+    The attitude needs no step-by-step recursion per direction. With ``C_j`` the product of
+    the body increments ``exp(w_i h_i)`` over the first j samples of an interval and ``t_j``
+    their time, forward integration from keyframe k gives ``exp(-W t_j) R_k C_j`` and backward
+    integration from k+1 gives ``exp(W (T - t_j)) R_k+1 C_T^T C_j`` (W = [omega_ie_n]x; the
+    Earth-rate increments share one axis, so they commute). Their difference is then
+    ``C_j^T M C_j`` with one closure rotation ``M = R_k^T exp(W T) R_k+1 C_T^T`` per interval,
+    and the blend ``fwd exp(wgt log(fwd^T bwd))`` equals ``exp(-W t_j) R_k exp(wgt log M) C_j``.
+    """
     idx, valid, m = _padded(key_idx)
     K1 = key_idx.size - 1
+    rows = np.arange(K1)
+    last = valid.sum(axis=1)  # offset of the next keyframe in each interval
     w = imu.gyro_radps[idx] - gyro_bias[:-1, None, :]  # bias of the interval's first keyframe
     f = f_all[idx] - accel_bias[:-1, None, :]
     h = np.where(valid, dt[idx], 0.0)  # padded steps have zero length
-    g = gravity_n[:-1]
-
-    def accel_n(R, f_b, v):
-        return np.einsum("kij,kj->ki", R, f_b) + g - 2.0 * np.cross(omega_ie_n, v)
-
-    fwd_R, fwd_p, fwd_v = (np.empty((K1, m + 1) + s) for s in ((3, 3), (3,), (3,)))
-    fwd_R[:, 0], fwd_p[:, 0], fwd_v[:, 0] = R_nb[:-1], pos_n[:-1], vel_n[:-1]
+    t_off = np.concatenate([np.zeros((K1, 1)), np.cumsum(h, axis=1)], axis=1)  # (K1, m+1) [s]
+    T = t_off[rows, last]
+    C = np.empty((K1, m + 1, 3, 3))
+    C[:, 0] = np.eye(3)
+    W_body = so3_exp(w * h[..., None])
     for j in range(m):
-        R, p, v, hj = fwd_R[:, j], fwd_p[:, j], fwd_v[:, j], h[:, j, None]
-        a = accel_n(R, f[:, j], v)
+        C[:, j + 1] = C[:, j] @ W_body[:, j]
+    R0, R1 = R_nb[:-1], R_nb[1:]
+    to_next = R1 @ np.swapaxes(C[rows, last], -1, -2)  # R_k+1 C_T^T
+    phi_M = so3_log(np.swapaxes(R0, -1, -2) @ so3_exp(omega_ie_n * T[:, None]) @ to_next)
+    Cf = np.einsum("kjab,kjb->kja", C[:, :m], f)  # C_j f_j
+    fwd_f = so3_exp_rotate(-omega_ie_n * t_off[:, :m, None], np.einsum("kab,kjb->kja", R0, Cf))
+    bwd_f = so3_exp_rotate(omega_ie_n * (T[:, None] - t_off[:, :m])[..., None], np.einsum("kab,kjb->kja", to_next, Cf))
+    g = gravity_n[:-1]
+    coriolis_T = -2.0 * skew(omega_ie_n).T  # v @ coriolis_T == -2 omega_ie_n x v
+
+    fwd_p, fwd_v = np.empty((K1, m + 1, 3)), np.empty((K1, m + 1, 3))
+    fwd_p[:, 0], fwd_v[:, 0] = pos_n[:-1], vel_n[:-1]
+    for j in range(m):
+        p, v, hj = fwd_p[:, j], fwd_v[:, j], h[:, j, None]
+        a = fwd_f[:, j] + g + v @ coriolis_T
         fwd_p[:, j + 1] = p + v * hj + 0.5 * a * hj**2
         fwd_v[:, j + 1] = v + a * hj
-        fwd_R[:, j + 1] = so3_exp(-omega_ie_n * hj) @ R @ so3_exp(w[:, j] * hj)
-    bwd_R, bwd_p, bwd_v = (np.zeros_like(a) for a in (fwd_R, fwd_p, fwd_v))  # padding stays finite
-    last = valid.sum(axis=1)  # offset of the next keyframe in each interval
-    rows = np.arange(K1)
-    bwd_R[rows, last], bwd_p[rows, last], bwd_v[rows, last] = R_nb[1:], pos_n[1:], vel_n[1:]
+    bwd_p, bwd_v = np.zeros_like(fwd_p), np.zeros_like(fwd_v)  # padding stays finite
+    bwd_p[rows, last], bwd_v[rows, last] = pos_n[1:], vel_n[1:]
     for j in range(m - 1, -1, -1):
         active = (j < last)[:, None]
-        R, p, v, hj = bwd_R[:, j + 1], bwd_p[:, j + 1], bwd_v[:, j + 1], h[:, j, None]
-        R_prev = so3_exp(omega_ie_n * hj) @ R @ so3_exp(-w[:, j] * hj)
-        a = accel_n(R_prev, f[:, j], v)
+        p, v, hj = bwd_p[:, j + 1], bwd_v[:, j + 1], h[:, j, None]
+        a = bwd_f[:, j] + g + v @ coriolis_T
         v_prev = v - a * hj
         p_prev = p - v_prev * hj - 0.5 * a * hj**2
-        bwd_R[:, j] = np.where(active[:, :, None], R_prev, bwd_R[:, j])
         bwd_v[:, j] = np.where(active, v_prev, bwd_v[:, j])
         bwd_p[:, j] = np.where(active, p_prev, bwd_p[:, j])
     span = (imu.t_s[key_idx[1:]] - imu.t_s[key_idx[:-1]])[:, None]
-    t_off = np.concatenate([np.zeros((K1, 1)), np.cumsum(h, axis=1)], axis=1)
     wgt = np.clip(t_off / span, 0.0, 1.0)
+    sample = np.concatenate([key_idx[:-1, None], idx], axis=1)
     keep = np.concatenate([np.ones((K1, 1), bool), valid], axis=1)
     keep[rows, last] = False  # the next keyframe starts the next interval
-    R_blend = fwd_R @ so3_exp(wgt[..., None] * so3_log(np.swapaxes(fwd_R, -1, -2) @ bwd_R))
-    p_blend = (1 - wgt[..., None]) * fwd_p + wgt[..., None] * bwd_p
-    v_blend = (1 - wgt[..., None]) * fwd_v + wgt[..., None] * bwd_v
-    sample = np.concatenate([key_idx[:-1, None], idx], axis=1)
-    t = imu.t_s[np.r_[sample[keep], key_idx[-1]]]
-    return DenseTrajectory(t, np.concatenate([R_blend[keep], R_nb[-1:]]),
-                           np.concatenate([p_blend[keep], pos_n[-1:]]), np.concatenate([v_blend[keep], vel_n[-1:]]))
+    if every > 1:
+        keep &= (index_offset + sample) % every == 0
+    k = np.nonzero(keep)[0]  # the interval of each kept sample
+    wgt = wgt[keep]
+    R_blend = so3_exp(-omega_ie_n * t_off[keep][:, None]) @ R0[k] @ so3_exp(wgt[:, None] * phi_M[k]) @ C[keep]
+    p_blend = (1 - wgt[:, None]) * fwd_p[keep] + wgt[:, None] * bwd_p[keep]
+    v_blend = (1 - wgt[:, None]) * fwd_v[keep] + wgt[:, None] * bwd_v[keep]
+    return DenseTrajectory(imu.t_s[sample[keep]], R_blend, p_blend, v_blend)
