@@ -19,9 +19,11 @@ quantised to 1 ns; values round-trip bit-exactly).
 
 Both directions are vectorised: messages are formatted with one printf
 template per schema and parsed, when they are in trackfusion's canonical text
-layout, by one number parse per batch of a topic (in two worker processes for
-a large log); other valid JSON layouts take the general ``json`` path with
-identical checks.
+layout, by one number parse per batch of a topic; other valid JSON layouts take
+the general ``json`` path with identical checks. A large log is read in two
+processes, the second half of its chunks by a forked child
+(:mod:`.mcap_parallel`), or else decoded in two worker processes while this
+one scans; both give the serial read's result exactly.
 """
 
 from __future__ import annotations

@@ -34,11 +34,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import SensorDataError
-from ..forked import ForkedTaskError, ForkedTasks, can_fork
+from ..forked import ForkedTasks, can_fork
 from . import mcap_log as m
 
 #: compressed chunk bytes below which a log is read in one process (forking is not worth it)
 MIN_BYTES = 8 << 20
+#: this process's work besides its chunks (reading and checking the child's bytes, taking its
+#: results, joining the batches), as a fraction of the whole read: measured 3 % on the hour log
+_PARENT_EXTRA = 0.03
 
 
 @dataclass
@@ -167,7 +170,7 @@ def _plan(scan: m._Scan, fb: m._FileBytes, size: int) -> tuple[_Plan, m._Scan] |
         if k < first:
             continue
         pending = _pending(table, counts[:k])
-        here = done + sum(pending.values()) * total / messages  # the straddling batches are decoded here
+        here = done + (sum(pending.values()) / messages + _PARENT_EXTRA) * total  # (the straddling batches too)
         cost = max(here, total - done)
         if best is None or cost < best[0]:
             best = (cost, k, pending)
@@ -271,10 +274,10 @@ class _Split:
 
     def _collect(self, scan: m._Scan) -> _Part | None:
         """The child's part when this process's state at the child's first chunk is the one it
-        started from; None (read the rest here) otherwise or when the child died."""
+        started from; None (read the rest here) otherwise, or when the child died or failed."""
         try:
             part = self.task.result()
-        except (ForkedTaskError, MemoryError):
+        except Exception:  # noqa: BLE001 (the child died or failed: no part, as without a child)
             return None
         if scan.schemas != self.plan.schemas or _channel_table(scan) != self.plan.channels:
             return None
