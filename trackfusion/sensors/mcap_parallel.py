@@ -109,8 +109,9 @@ def _counts(fb: m._FileBytes, records: list[tuple[int, int, int]]) -> list[dict[
         if op == m._CHUNK:
             counts.append({})
         elif op == m._MESSAGE_INDEX and counts:
-            cid, length = m.struct.unpack("<HI", fb[start + 9:start + 15])
-            if length % 16 or 6 + length != stop - start - 9:
+            head = fb[start + 9:start + 15]
+            cid, length = m.struct.unpack("<HI", head) if len(head) == 6 else (0, -1)
+            if length < 0 or length % 16 or 6 + length != stop - start - 9:
                 malformed.add(len(counts) - 1)
             else:
                 counts[-1][cid] = counts[-1].get(cid, 0) + length // 16
@@ -295,7 +296,10 @@ def start_split(scan: m._Scan, fb: m._FileBytes, size: int) -> _Split | None:
     return this process's side, or None to read the whole file here (module docstring)."""
     if not can_fork():
         return None
-    planned = _plan(scan, fb, size)
+    try:
+        planned = _plan(scan, fb, size)
+    except Exception:  # noqa: BLE001 (a damaged file: the walk finds what is wrong, in file order)
+        planned = None
     if planned is None:
         return None
     plan, table = planned
