@@ -30,6 +30,7 @@ Otherwise the serial read runs.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,7 +111,7 @@ def _counts(fb: m._FileBytes, records: list[tuple[int, int, int]]) -> list[dict[
             counts.append({})
         elif op == m._MESSAGE_INDEX and counts:
             head = fb[start + 9:start + 15]
-            cid, length = m.struct.unpack("<HI", head) if len(head) == 6 else (0, -1)
+            cid, length = struct.unpack("<HI", head) if len(head) == 6 else (0, -1)
             if length < 0 or length % 16 or 6 + length != stop - start - 9:
                 malformed.add(len(counts) - 1)
             else:
