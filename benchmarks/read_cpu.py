@@ -3,8 +3,8 @@
 Usage: python benchmarks/read_cpu.py [--src DIR ...] [--repeats N] [--passes N]
 Reads the cached ``speed.py`` log (1.72 M IMU messages, 174 MB) with ``read_log`` in a fresh
 process per tree and repeat, alternating the trees, and prints per tree the median wall time
-and CPU seconds of the reading process and of its decode workers (forked children), and its
-peak memory. On a shared machine compare CPU, not wall. ``--src``: source trees to compare
+and CPU seconds of the reading process and of its forked children (the child reading the second
+half of the chunks, or decode workers: docs/read_speed.md), and its peak memory. On a shared machine compare CPU, not wall. ``--src``: source trees to compare
 (default: this one), e.g. main's from ``git archive``. Writes benchmarks/results/read_cpu.json.
 """
 
@@ -62,7 +62,7 @@ def main() -> None:
         results[label] = {"date": time.strftime("%Y-%m-%d %H:%M"), "log": str(log), "repeats": args.repeats,
                           "load_average_1min": load, "median": median, "runs": entries}
         print(f"{label}: wall {median['wall_s']:.1f} s, CPU reading process {median['cpu_main_s']:.1f} s + "
-              f"decode workers {median['cpu_workers_s']:.1f} s = {median['cpu_main_s'] + median['cpu_workers_s']:.1f} s, "
+              f"forked children {median['cpu_workers_s']:.1f} s = {median['cpu_main_s'] + median['cpu_workers_s']:.1f} s, "
               f"peak {median['peak_rss_mb']:.0f} MB (median of {args.repeats}; load average {load:.1f})")
     RESULTS.parent.mkdir(exist_ok=True)
     RESULTS.write_text(json.dumps(results, indent=2) + "\n")

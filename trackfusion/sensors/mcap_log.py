@@ -19,9 +19,11 @@ quantised to 1 ns; values round-trip bit-exactly).
 
 Both directions are vectorised: messages are formatted with one printf
 template per schema and parsed, when they are in trackfusion's canonical text
-layout, by one number parse per batch of a topic (in two worker processes for
-a large log); other valid JSON layouts take the general ``json`` path with
-identical checks.
+layout, by one number parse per batch of a topic; other valid JSON layouts take
+the general ``json`` path with identical checks. A large log is read in two
+processes, the second half of its chunks by a forked child
+(:mod:`.mcap_parallel`), or else decoded in two worker processes while this
+one scans; both give the serial read's result exactly.
 """
 
 from __future__ import annotations
@@ -571,11 +573,24 @@ class _RawChannel:
     #: (index of the batch's first record, its decoding: a :func:`_decode_batch` result or a future of one)
     batches: list[tuple[int, Any]] = field(default_factory=list)
     decoded: int = 0
+    #: payloads of the current batch that the other process of a two-process read holds (its
+    #: child starts inside a batch, sensors/mcap_parallel.py): the batch is handed back, not decoded
+    held: int = 0
+    #: (payload count, decoding) of the pending payloads, decoded already by that child: used
+    #: when the batch is still exactly those payloads
+    tail: tuple[int, Any] | None = None
 
     def decode_pending(self, schema: str, decoder: "_Decoder | None" = None) -> None:
         """Hand the pending payloads to ``decoder`` as one batch (decoded here without one)."""
-        self.batches.append((self.decoded, decoder.decode(self.payloads, schema) if decoder is not None
-                             else _decode_batch(self.payloads, schema)))
+        tail, self.tail = self.tail, None
+        if self.held:
+            result, self.held = _Held(self.payloads), 0
+        elif tail is not None and tail[0] == len(self.payloads):
+            result = tail[1]
+        else:
+            result = (decoder.decode(self.payloads, schema) if decoder is not None
+                      else _decode_batch(self.payloads, schema))
+        self.batches.append((self.decoded, result))
         self.decoded += len(self.payloads)
         self.payloads = []
 
@@ -594,6 +609,14 @@ class _RawChannel:
             batches.append(result)
         del result
         return _join_batches(batches)
+
+
+@dataclass
+class _Held:
+    """A batch whose first payloads the other process of a two-process read holds: its payloads
+    here, handed back undecoded (sensors/mcap_parallel.py)."""
+
+    payloads: list[bytes]
 
 
 def _join_batches(batches: list[list[np.ndarray]]) -> list[np.ndarray]:
@@ -690,6 +713,8 @@ class _Scan:
     copyable: bool = True
     stat: os.stat_result | None = None
     decoder: _Decoder = field(default_factory=_Decoder)
+    #: the second half of the chunks read by a forked child (sensors/mcap_parallel.py), or None
+    split: Any = None
 
     def source(self) -> "RawSource | None":
         """What copying the whole file needs, or None unless it was read whole, intact and copyable."""
@@ -753,7 +778,7 @@ class _Scan:
                 continue
             ch.times.append(hdr["log_time"][sel])
             ch.payloads.extend(map(data.__getitem__, map(slice, starts[sel].tolist(), stops[sel].tolist())))
-            if len(ch.payloads) >= _DECODE_BATCH:
+            if len(ch.payloads) + ch.held >= _DECODE_BATCH:
                 try:
                     schema = _channel_schema(self, ch)
                 except _Bad:
@@ -849,6 +874,11 @@ def _inflate(compression: str, data: bytes, size: int, at: int, complete: bool =
 
 def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool) -> None:
     """A Chunk record (``body`` may be cut short when ``complete`` is False)."""
+    _walk_chunk(scan, _chunk_data(body, at, complete), at, complete)
+
+
+def _chunk_data(body: bytes, at: int, complete: bool) -> bytes:
+    """The records of a Chunk record at file offset ``at``, inflated and checked (length, CRC)."""
     c = _Cursor(body, at + 9)
     _start, _end, size, crc = c.take("<QQQI")
     compression = c.raw(c.take("<I")).decode("utf-8", "replace")
@@ -862,13 +892,14 @@ def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool) -> None:
             raise _Corrupt(f"chunk inflates to {len(records)} bytes, header says {size}", at)
         if crc and zlib.crc32(records) != crc:
             raise _Corrupt("chunk CRC mismatch", at)
-    _walk_chunk(scan, records, at, complete)
+    return records
 
 
 def _read_record(scan: _Scan, op: int, body: bytes, at: int) -> None:
     """One complete top-level record of the data section."""
     if op == _CHUNK:
-        _read_chunk(scan, body, at, complete=True)
+        if scan.split is None or not scan.split.take(scan, at):
+            _read_chunk(scan, body, at, complete=True)
     elif op == _MESSAGE:
         _walk_chunk(scan, _RECORD_HEAD.pack(op, len(body)) + body, at, complete=True)
     elif op == _SCHEMA:
@@ -970,7 +1001,13 @@ def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
             size = fh.seek(0, io.SEEK_END)
             if size == 0:
                 raise _Corrupt("empty file", 0)
-            _scan_records(scan, _FileBytes(fh.fileno(), size), size)
+            from .mcap_parallel import start_split
+            scan.split = start_split(scan, _FileBytes(fh.fileno(), size), size)
+            try:
+                _scan_records(scan, _FileBytes(fh.fileno(), size), size)
+            finally:
+                if scan.split is not None:
+                    scan.split.close()
     except FileNotFoundError:
         raise SensorDataError(f"{path}: file not found") from None
     except IsADirectoryError:
