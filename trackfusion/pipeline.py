@@ -33,7 +33,7 @@ from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
-from .fusion.densify_forked import densify_forked
+from .fusion.densify_forked import start_densify_forked
 from .fusion.segments import smooth_in_segments, worker_count
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
@@ -395,11 +395,32 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
     return out
 
 
-def _smooth_batch(problem: FusionProblem, say: Callable[[str], None]) -> SmootherResult:
+def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
+                  on_solved: Callable[..., None] | None = None) -> SmootherResult:
     """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
-    (registration/two_stage.py), anything else by :func:`smooth`."""
+    (registration/two_stage.py), anything else by :func:`smooth` (``on_solved``: see there)."""
     from .registration.two_stage import smooth_two_stage, uses_two_stage
-    return smooth_two_stage(problem, progress=say) if uses_two_stage(problem) else smooth(problem, say)
+    return (smooth_two_stage(problem, progress=say, on_solved=on_solved) if uses_two_stage(problem)
+            else smooth(problem, say, on_solved=on_solved))
+
+
+def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None]):
+    """One batch (:func:`_smooth_batch`) and its rows at the IMU rate: the densification starts
+    in forked children as soon as the solve is done and runs while this process computes the
+    marginals (fusion/densify_forked.py; the same rows as one densify call). Returns (result, dense);
+    the result's ``timings_s["densify_wait_s"]``: the wall time waited for the rows after the marginals."""
+    earth_rate_n = geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3)
+    started = []
+    with ForkedTasks(always_fork=True) as children:
+        def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
+            started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
+                                                accel_bias, geodesy.gravity_n(pos_n, problem.origin),
+                                                earth_rate_n, worker_count(cfg.smoother)))
+        res = _smooth_batch(problem, say, on_solved)
+        tic = time.perf_counter()
+        dense = started[-1].result()
+        res.timings_s["densify_wait_s"] = time.perf_counter() - tic
+        return res, dense
 
 
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
@@ -487,14 +508,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                     res, dense, info["segments"] = segmented
                     tic, rows_every = time.perf_counter(), 1
                 else:
-                    res = _smooth_batch(problem, say)
+                    res, dense = _smooth_and_densify(problem, cfg, say)  # fusion/densify_forked.py
                     tic, rows_every = time.perf_counter(), every
-                    # in forked workers (the same rows): fusion/densify_forked.py
-                    dense = densify_forked(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n,
-                                           res.gyro_bias_radps, res.accel_bias_mps2,
-                                           geodesy.gravity_n(res.pos_n, problem.origin),
-                                           geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate
-                                           else np.zeros(3), worker_count(sm))
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
                 table = evaluation_table = trajectory_table(dense, res, chainage, rows_every)

@@ -725,7 +725,7 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
            hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
            slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False,
-           sigmas: bool = True) -> SmootherResult:
+           sigmas: bool = True, on_solved: Callable[..., None] | None = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
 
@@ -738,6 +738,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     it (fusion/segments.py, fusion/slow_states.py); with ``end_covariances`` the result carries the
     marginal covariances of the first and last bias and scale states (``SmootherResult.end_cov``);
     without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
+    ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
+    result's arrays once the solve is done, before the marginals (the pipeline starts the
+    densification in forked children there, fusion/densify_forked.py).
     """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -871,13 +874,16 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
+    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
+    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
+    if on_solved is not None:
+        on_solved(key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
 
     tic = time.perf_counter()
     # the solve's last Bayes tree serves the marginals (linearised at most one converged step
     # before the estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
     tree = _eliminate(gfg) if b.soft.keys else sol.tree
-    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
         else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
     end_cov = None
@@ -890,7 +896,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
         hand_over = _hand_over(gfg, values, with_scale, t_key, k, bias_seg, seg, gnss, used)
     timings["marginals_s"] = time.perf_counter() - tic
-    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     scale = state.s[seg] if with_scale else None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(sol.cost),
