@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from trackfusion.cli import main
+from trackfusion.errors import RegistrationError
 from trackfusion.pipeline import load_pipeline, run
 from trackfusion.simulation.scenarios import simulate_to_dir
 
@@ -109,3 +110,51 @@ def test_step_rule_gives_the_cost_criterions_solution_in_fewer_iterations(bridge
     assert np.abs(q[:, :3]).max() < 0.01 / 206265  # station rotations: 2 % of the 0.5" tilt target
     # the marginals come from the tree of the last iteration, one converged step before the estimate
     np.testing.assert_allclose(fast.sigma_pos_n_m, full.sigma_pos_n_m, rtol=1e-3)
+
+
+def test_stations_prepared_in_forked_children_equal_in_turn(bridge_run, monkeypatch):
+    """prepare_prisms handles each station in its own forked child (two CPUs): the same readings,
+    clocks, flags and reports, bit for bit, as the stations one after the other here."""
+    from dataclasses import fields
+
+    from trackfusion import pipeline as P
+    from trackfusion.registration import survey as SV
+    from trackfusion.workers import run_forked
+    d, _ = bridge_run
+    pl = load_pipeline(d / "pipeline.yaml")
+    log, _ = P._read(pl)
+    problem, _ = P.build_problem(pl, log, lambda _m: None)
+    forks = []
+
+    def prepared(forked):
+        monkeypatch.setattr(SV, "can_fork", lambda n: forked)
+        monkeypatch.setattr(SV, "run_forked", lambda task, n: forks.append(n) or run_forked(task, n))
+        return SV.prepare_prisms(log.total_stations, pl.config.sensors.total_stations,
+                                 pl.config.factors.total_stations, problem.origin, problem.odometer)
+
+    forked, in_turn = prepared(True), prepared(False)
+    assert forks == [2]
+    assert list(forked.stations) == list(in_turn.stations) == ["TS01", "TS02"]
+    for sid, a in forked.stations.items():
+        b = in_turn.stations[sid]
+        for name in ("t_s", "pos_n", "cov_n", "centre_n", "flagged"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert a.offset_s == b.offset_s and a.sync.r_max == b.sync.r_max
+        np.testing.assert_array_equal(a.sync.r, b.sync.r)
+    for f in fields(forked.readings):
+        x, y = getattr(forked.readings, f.name), getattr(in_turn.readings, f.name)
+        np.testing.assert_array_equal(x, y) if isinstance(x, np.ndarray) else None
+        assert isinstance(x, np.ndarray) or x == y
+    assert json.dumps(forked.info, default=str) == json.dumps(in_turn.info, default=str)
+    # a station refused in its child: its own error, here
+    real_sync = SV.timesync.synchronise
+
+    def refuse_ts02(sid, *args):
+        if sid == "TS02":
+            raise RegistrationError("time sync: station TS02: refused for the test")
+        return real_sync(sid, *args)
+
+    monkeypatch.setattr(SV.timesync, "synchronise", refuse_ts02)
+    with pytest.raises(RegistrationError, match="station TS02: refused for the test"):
+        prepared(True)
+    assert forks == [2, 2]
