@@ -112,41 +112,45 @@ def test_step_rule_gives_the_cost_criterions_solution_in_fewer_iterations(bridge
     np.testing.assert_allclose(fast.sigma_pos_n_m, full.sigma_pos_n_m, rtol=1e-3)
 
 
-def test_stations_prepared_in_forked_children_equal_in_turn(bridge_run, monkeypatch):
-    """prepare_prisms handles each station in its own forked child (two CPUs): the same readings,
-    clocks, flags and reports, bit for bit, as the stations one after the other here."""
+
+def test_stations_prepared_in_a_forked_child_while_preintegrating(bridge_run, monkeypatch):
+    """pipeline._prepare_and_preintegrate: the survey prepared in a forked child equals the one
+    prepared here, bit for bit, and the preintegration done meanwhile equals the smoother's own;
+    a station's refusal in the child is raised here as itself."""
     from dataclasses import fields
 
+    from trackfusion import forked
     from trackfusion import pipeline as P
+    from trackfusion.fusion import smoother
     from trackfusion.registration import survey as SV
-    from trackfusion.workers import run_forked
     d, _ = bridge_run
     pl = load_pipeline(d / "pipeline.yaml")
     log, _ = P._read(pl)
     problem, _ = P.build_problem(pl, log, lambda _m: None)
-    forks = []
-
-    def prepared(forked):
-        monkeypatch.setattr(SV, "can_fork", lambda n: forked)
-        monkeypatch.setattr(SV, "run_forked", lambda task, n: forks.append(n) or run_forked(task, n))
-        return SV.prepare_prisms(log.total_stations, pl.config.sensors.total_stations,
-                                 pl.config.factors.total_stations, problem.origin, problem.odometer)
-
-    forked, in_turn = prepared(True), prepared(False)
-    assert forks == [2]
-    assert list(forked.stations) == list(in_turn.stations) == ["TS01", "TS02"]
-    for sid, a in forked.stations.items():
-        b = in_turn.stations[sid]
+    assert forked.can_fork()  # (2 CPUs) the child path is the one tested
+    prob_a, in_child, pre = P._prepare_and_preintegrate(pl, log, problem, lambda _m: None)
+    prob_b, here = P._prepare_total_stations(pl, log, problem, lambda _m: None)
+    assert list(in_child.stations) == list(here.stations) == ["TS01", "TS02"]
+    for sid, a in in_child.stations.items():
+        b = here.stations[sid]
         for name in ("t_s", "pos_n", "cov_n", "centre_n", "flagged"):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
         assert a.offset_s == b.offset_s and a.sync.r_max == b.sync.r_max
         np.testing.assert_array_equal(a.sync.r, b.sync.r)
-    for f in fields(forked.readings):
-        x, y = getattr(forked.readings, f.name), getattr(in_turn.readings, f.name)
-        np.testing.assert_array_equal(x, y) if isinstance(x, np.ndarray) else None
-        assert isinstance(x, np.ndarray) or x == y
-    assert json.dumps(forked.info, default=str) == json.dumps(in_turn.info, default=str)
-    # a station refused in its child: its own error, here
+    for f in fields(in_child.readings):
+        x, y = getattr(prob_a.prisms, f.name), getattr(prob_b.prisms, f.name)
+        if isinstance(x, np.ndarray):
+            np.testing.assert_array_equal(x, y)
+        else:
+            assert x == y
+    assert json.dumps(in_child.info, default=str) == json.dumps(here.info, default=str)
+    fresh = smoother.preintegrate_problem(prob_b)
+    np.testing.assert_array_equal(pre.key_idx, fresh.key_idx)
+    assert len(pre.pims) == len(fresh.pims) == pre.key_idx.size - 1
+    for k in (0, len(pre.pims) // 2, len(pre.pims) - 1):
+        for name in ("deltaPij", "deltaVij", "preintMeasCov", "deltaTij"):
+            np.testing.assert_array_equal(getattr(pre.pims[k], name)(), getattr(fresh.pims[k], name)())
+        np.testing.assert_array_equal(pre.pims[k].deltaRij().matrix(), fresh.pims[k].deltaRij().matrix())
     real_sync = SV.timesync.synchronise
 
     def refuse_ts02(sid, *args):
@@ -155,6 +159,5 @@ def test_stations_prepared_in_forked_children_equal_in_turn(bridge_run, monkeypa
         return real_sync(sid, *args)
 
     monkeypatch.setattr(SV.timesync, "synchronise", refuse_ts02)
-    with pytest.raises(RegistrationError, match="station TS02: refused for the test"):
-        prepared(True)
-    assert forks == [2, 2]
+    with pytest.raises(RegistrationError, match="log.mcap: time sync: station TS02: refused for the test"):
+        P._prepare_and_preintegrate(pl, log, problem, lambda _m: None)

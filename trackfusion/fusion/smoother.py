@@ -722,10 +722,40 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
                     float(var[d + 6]) if with_scale else None)
 
 
+@dataclass
+class Preintegrated:
+    """The IMU preintegrated between a problem's keyframes (:func:`preintegrate_problem`):
+    keyframe sample indices ``key_idx`` (K,), K-1 ``pims`` and their ``params``
+    (:func:`~.preintegration.preintegrate`), and the wall time it took ``wall_s`` [s]."""
+
+    key_idx: np.ndarray
+    pims: list
+    params: list
+    wall_s: float
+
+
+def _keyframes(problem: FusionProblem) -> np.ndarray:
+    """The keyframes' IMU sample indices of :func:`smooth` (K,): the grid, and the GNSS fixes' times."""
+    gnss = problem.gnss if problem.factors.gnss.enabled else None
+    return keyframe_indices(problem.imu.t_s, problem.keyframes.spacing_s, gnss.t_s if gnss is not None else None)
+
+
+def preintegrate_problem(problem: FusionProblem) -> Preintegrated:
+    """The IMU of ``problem`` preintegrated between the keyframes :func:`smooth` makes (gravity
+    at the origin; the smoother sets each interval's once it has positions)."""
+    tic = time.perf_counter()
+    key_idx = _keyframes(problem)
+    omega_ie_n = geodesy.earth_rate_n(problem.origin) if problem.factors.imu.earth_rate else np.zeros(3)
+    gravity0 = geodesy.gravity_n(np.zeros((key_idx.size, 3)), problem.origin)
+    pims, params = preintegrate(problem.imu, key_idx, problem.imu_noise, gravity0, omega_ie_n)
+    return Preintegrated(key_idx, pims, params, time.perf_counter() - tic)
+
+
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
            hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
            slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False,
-           sigmas: bool = True, on_solved: Callable[..., None] | None = None) -> SmootherResult:
+           sigmas: bool = True, on_solved: Callable[..., None] | None = None,
+           preintegrated: "Preintegrated | None" = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
 
@@ -740,7 +770,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
     ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
     result's arrays once the solve is done, before the marginals (the pipeline starts the
-    densification in forked children there, fusion/densify_forked.py).
+    densification in forked children there, fusion/densify_forked.py). ``preintegrated``: this
+    problem's :func:`preintegrate_problem`, done beforehand (the pipeline does it while the total
+    stations are prepared in a forked child); its ``wall_s`` counts in ``timings_s["preintegrate_s"]``.
     """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -749,17 +781,20 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if imu.t_s.size < 10:
         raise FusionError("the IMU log holds fewer than 10 samples")
     gnss = problem.gnss if fs.gnss.enabled else None
-    extra = gnss.t_s if gnss is not None else None
-    key_idx = keyframe_indices(imu.t_s, problem.keyframes.spacing_s, extra)
+    key_idx = _keyframes(problem)
     t_key = imu.t_s[key_idx]
     static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
     init_problem = _with_prism_fixes(problem) if gnss is None and problem.prisms is not None else problem
     alignment = join.alignment if join is not None else _alignment(init_problem)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
-    say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
-    gravity0 = geodesy.gravity_n(np.zeros((t_key.size, 3)), problem.origin)
-    pims, params = preintegrate(imu, key_idx, problem.imu_noise, gravity0, omega_ie_n)
-    timings["preintegrate_s"] = time.perf_counter() - tic
+    given = preintegrated is not None
+    if not given:
+        say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
+        preintegrated = preintegrate_problem(problem)
+    elif not np.array_equal(preintegrated.key_idx, key_idx):
+        raise ValueError("smooth: the given preintegration is of other keyframes")
+    pims, params = preintegrated.pims, preintegrated.params
+    timings["preintegrate_s"] = time.perf_counter() - tic + (preintegrated.wall_s if given else 0.0)
 
     tic = time.perf_counter()
     R0 = _chain_rotations(join.R_nb if join is not None else alignment.R_nb, pims, np.diff(t_key), omega_ie_n)

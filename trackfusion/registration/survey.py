@@ -33,7 +33,6 @@ from .steps import motionless_mislocks, station_mislocks
 from .polar import StationSetup
 from .seed_method import SeedRegistration, overlap_axes, register_seed
 from .stations import ARCSEC, Resection, readings_to_n, station_setup
-from ..workers import can_fork, run_forked
 
 
 @dataclass
@@ -85,15 +84,8 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
     if unknown:
         raise RegistrationError(f"sensors.total_stations.stations: the log has readings of {unknown}, "
                                 "which are not configured")
-    ids = list(cfg.stations)
-
-    def station(i: int) -> tuple[StationPrep, list[dict], list[dict]]:
-        return _prepare_station(ids[i], cfg.stations[ids[i]], data[ids[i]], cfg, fs, origin, odometer)
-
-    # the stations are independent: each in its own forked child when two CPUs are free (the
-    # first failure in configuration order is raised, as in turn)
-    done = run_forked(station, len(ids)) if can_fork(len(ids)) else [station(i) for i in range(len(ids))]
-    stations = {sid: prep for sid, (prep, _, _) in zip(ids, done)}
+    done = [_prepare_station(sid, sc, data[sid], cfg, fs, origin, odometer) for sid, sc in cfg.stations.items()]
+    stations = {sid: prep for sid, (prep, _, _) in zip(cfg.stations, done)}
     clock_jumps = [j for _, jumps, _ in done for j in jumps]
     step_mislocks = [m for _, _, mislocks in done for m in mislocks]
     if fs.registration == "seed":
