@@ -84,56 +84,49 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
     if unknown:
         raise RegistrationError(f"sensors.total_stations.stations: the log has readings of {unknown}, "
                                 "which are not configured")
-    done = [_prepare_station(sid, sc, data[sid], cfg, fs, origin, odometer) for sid, sc in cfg.stations.items()]
-    stations = {sid: prep for sid, (prep, _, _) in zip(cfg.stations, done)}
-    clock_jumps = [j for _, jumps, _ in done for j in jumps]
-    step_mislocks = [m for _, _, mislocks in done for m in mislocks]
+    prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
+    stations: dict[str, StationPrep] = {}
+    clock_jumps: list[dict] = []
+    step_mislocks: list[dict] = []
+    for sid, sc in cfg.stations.items():
+        d = data[sid]
+        if d.t_s.size == 0:
+            raise RegistrationError(f"/total_station/{sid}: no readings")
+        setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
+        pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
+                                     cfg.refraction_k, *prec)
+        flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: another reflector
+        ok = ~flagged
+        sync = None
+        if sc.clock_offset_s is not None:
+            offset = float(sc.clock_offset_s)
+        else:
+            if odometer is None:
+                raise RegistrationError(f"station {sid}: time synchronisation needs the odometer "
+                                        f"(or give sensors.total_stations.stations.{sid}.clock_offset_s)")
+            sync = timesync.synchronise(sid, d.t_s[ok], pos_n[ok], odometer.t_s, odometer.distance_m, fs.time_sync)
+            offset = sync.offset_s
+        t_station = d.t_s
+        if odometer is not None:  # issue 8: steps of the station's clock (clock_jumps.py)
+            t_station, jumps = correct_station_clock_jumps(sid, d.t_s, offset, pos_n, cov_n, odometer.t_s,
+                                                           odometer.distance_m, excluded=flagged)
+            if jumps and sync is not None:  # the correlation again, on the corrected stamps
+                sync = timesync.synchronise(sid, t_station[ok], pos_n[ok], odometer.t_s, odometer.distance_m,
+                                            fs.time_sync)
+                offset = sync.offset_s
+            clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
+        if odometer is not None:  # issue 8: a reflector that does not move with the trolley
+            still, more = motionless_mislocks(t_station - offset, pos_n, unpaired, odometer.t_s, odometer.distance_m)
+            flagged, mislocks = flagged | still, sorted(mislocks + more, key=lambda m: m["first"])
+        step_mislocks += [{"station": sid, "start_s": float(t_station[m["first"]] - offset),
+                           "end_s": float(t_station[m["last"]] - offset), **m} for m in mislocks]
+        centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
+        stations[sid] = StationPrep(setup, centre, t_station - offset, pos_n, cov_n, offset, sync, res,
+                                    flagged=flagged)
     if fs.registration == "seed":
         _apply_seed_registration(stations, odometer)
     return PrismSurvey(stations, _readings(stations, cfg, fs),
                        {"clock_jumps": clock_jumps, "step_mislocks": step_mislocks})
-
-
-def _prepare_station(sid: str, sc, d: TotalStationData, cfg, fs, origin: geodesy.Origin,
-                     odometer: OdometerData | None) -> tuple[StationPrep, list[dict], list[dict]]:
-    """One station of :func:`prepare_prisms`: set-up, readings to ``n``, the step check, time
-    synchronisation and clock jumps. Returns its :class:`StationPrep`, its clock jumps and its
-    step-check mis-locks (``info`` entries of :class:`PrismSurvey`)."""
-    prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
-    clock_jumps: list[dict] = []
-    if d.t_s.size == 0:
-        raise RegistrationError(f"/total_station/{sid}: no readings")
-    setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
-    pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
-                                 cfg.refraction_k, *prec)
-    flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: another reflector
-    ok = ~flagged
-    sync = None
-    if sc.clock_offset_s is not None:
-        offset = float(sc.clock_offset_s)
-    else:
-        if odometer is None:
-            raise RegistrationError(f"station {sid}: time synchronisation needs the odometer "
-                                    f"(or give sensors.total_stations.stations.{sid}.clock_offset_s)")
-        sync = timesync.synchronise(sid, d.t_s[ok], pos_n[ok], odometer.t_s, odometer.distance_m, fs.time_sync)
-        offset = sync.offset_s
-    t_station = d.t_s
-    if odometer is not None:  # issue 8: steps of the station's clock (clock_jumps.py)
-        t_station, jumps = correct_station_clock_jumps(sid, d.t_s, offset, pos_n, cov_n, odometer.t_s,
-                                                       odometer.distance_m, excluded=flagged)
-        if jumps and sync is not None:  # the correlation again, on the corrected stamps
-            sync = timesync.synchronise(sid, t_station[ok], pos_n[ok], odometer.t_s, odometer.distance_m,
-                                        fs.time_sync)
-            offset = sync.offset_s
-        clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
-    if odometer is not None:  # issue 8: a reflector that does not move with the trolley
-        still, more = motionless_mislocks(t_station - offset, pos_n, unpaired, odometer.t_s, odometer.distance_m)
-        flagged, mislocks = flagged | still, sorted(mislocks + more, key=lambda m: m["first"])
-    step_mislocks = [{"station": sid, "start_s": float(t_station[m["first"]] - offset),
-                      "end_s": float(t_station[m["last"]] - offset), **m} for m in mislocks]
-    centre = geodesy.ecef_to_n(setup.instrument_ecef(origin)[0], origin)
-    prep = StationPrep(setup, centre, t_station - offset, pos_n, cov_n, offset, sync, res, flagged=flagged)
-    return prep, clock_jumps, step_mislocks
 
 
 def _apply_seed_registration(stations: dict[str, StationPrep], odometer: OdometerData | None) -> None:
