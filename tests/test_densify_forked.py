@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from trackfusion.forked import ForkedTasks
 from trackfusion.fusion import densify_forked as DF
 from trackfusion.fusion.trajectory import densify
 from trackfusion.rotations import so3_exp
@@ -45,10 +46,48 @@ def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
     monkeypatch.setattr(DF, "BLOCK", 20)
     assert DF.part_bounds(keyframed[1].size - 1, 2) == [(0, 40), (40, 100)]
     whole = densify(*keyframed, block=20)
-    for forked in (True, False):  # in forked children, or the same parts in turn here
+    for forked in (True, False):  # in forked children, or in one call here
         monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
-        monkeypatch.setattr(DF, "run_forked", DF.run_forked if forked else
-                            (lambda task, n: [task(i) for i in range(n)]))
         parts = DF.densify_forked(*keyframed, workers=2)
         for name in ("t_s", "R_nb", "pos_n", "vel_n"):
             np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name))
+
+
+def test_started_densification_uses_the_states_at_its_start(keyframed, monkeypatch):
+    """start_densify_forked returns while its children work: this process may go on (here it
+    overwrites the states it handed over) and result() still gives the rows of the states at
+    the start, bit for bit."""
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)
+    monkeypatch.setattr(DF, "BLOCK", 20)
+    monkeypatch.setattr(DF, "can_fork", lambda n: True)
+    whole = densify(*keyframed, block=20)
+    args = [a.copy() if isinstance(a, np.ndarray) else a for a in keyframed]
+    with ForkedTasks(always_fork=True) as tasks:
+        job = DF.start_densify_forked(tasks, *args, workers=2)
+        assert len(tasks.tasks) == 2 and all(t.pid is not None for t in tasks.tasks)  # two children at work
+        args[2][:] = np.eye(3)  # R_nb, and pos_n, overwritten after the start
+        args[3][:] = 0.0
+        dense = job.result()
+    for name in ("t_s", "R_nb", "pos_n", "vel_n"):
+        np.testing.assert_array_equal(getattr(dense, name), getattr(whole, name))
+
+
+def test_a_failed_part_is_raised_and_the_other_child_reaped(keyframed, monkeypatch):
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)
+    monkeypatch.setattr(DF, "BLOCK", 20)
+    monkeypatch.setattr(DF, "can_fork", lambda n: True)
+    real_part = DF._part
+
+    def part(i):
+        if i == 0:
+            raise ValueError("part 0 failed")
+        return real_part(i)
+
+    monkeypatch.setattr(DF, "_part", part)
+    children = []
+    with pytest.raises(ValueError, match="part 0 failed"):
+        with ForkedTasks(always_fork=True) as tasks:
+            job = DF.start_densify_forked(tasks, *keyframed, workers=2)
+            children += tasks.tasks
+            job.result()
+    assert len(children) == 2 and all(c.pid is None for c in children)  # both children waited for or killed

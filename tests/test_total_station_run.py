@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from trackfusion.cli import main
+from trackfusion.errors import RegistrationError
 from trackfusion.pipeline import load_pipeline, run
 from trackfusion.simulation.scenarios import simulate_to_dir
 
@@ -109,3 +110,54 @@ def test_step_rule_gives_the_cost_criterions_solution_in_fewer_iterations(bridge
     assert np.abs(q[:, :3]).max() < 0.01 / 206265  # station rotations: 2 % of the 0.5" tilt target
     # the marginals come from the tree of the last iteration, one converged step before the estimate
     np.testing.assert_allclose(fast.sigma_pos_n_m, full.sigma_pos_n_m, rtol=1e-3)
+
+
+
+def test_stations_prepared_in_a_forked_child_while_preintegrating(bridge_run, monkeypatch):
+    """pipeline._prepare_and_preintegrate: the survey prepared in a forked child equals the one
+    prepared here, bit for bit, and the preintegration done meanwhile equals the smoother's own;
+    a station's refusal in the child is raised here as itself."""
+    from dataclasses import fields
+
+    from trackfusion import forked
+    from trackfusion import pipeline as P
+    from trackfusion.fusion import smoother
+    from trackfusion.registration import survey as SV
+    d, _ = bridge_run
+    pl = load_pipeline(d / "pipeline.yaml")
+    log, _ = P._read(pl)
+    problem, _ = P.build_problem(pl, log, lambda _m: None)
+    assert forked.can_fork()  # (2 CPUs) the child path is the one tested
+    prob_a, in_child, pre = P._prepare_and_preintegrate(pl, log, problem, lambda _m: None)
+    prob_b, here = P._prepare_total_stations(pl, log, problem, lambda _m: None)
+    assert list(in_child.stations) == list(here.stations) == ["TS01", "TS02"]
+    for sid, a in in_child.stations.items():
+        b = here.stations[sid]
+        for name in ("t_s", "pos_n", "cov_n", "centre_n", "flagged"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert a.offset_s == b.offset_s and a.sync.r_max == b.sync.r_max
+        np.testing.assert_array_equal(a.sync.r, b.sync.r)
+    for f in fields(in_child.readings):
+        x, y = getattr(prob_a.prisms, f.name), getattr(prob_b.prisms, f.name)
+        if isinstance(x, np.ndarray):
+            np.testing.assert_array_equal(x, y)
+        else:
+            assert x == y
+    assert json.dumps(in_child.info, default=str) == json.dumps(here.info, default=str)
+    fresh = smoother.preintegrate_problem(prob_b)
+    np.testing.assert_array_equal(pre.key_idx, fresh.key_idx)
+    assert len(pre.pims) == len(fresh.pims) == pre.key_idx.size - 1
+    for k in (0, len(pre.pims) // 2, len(pre.pims) - 1):
+        for name in ("deltaPij", "deltaVij", "preintMeasCov", "deltaTij"):
+            np.testing.assert_array_equal(getattr(pre.pims[k], name)(), getattr(fresh.pims[k], name)())
+        np.testing.assert_array_equal(pre.pims[k].deltaRij().matrix(), fresh.pims[k].deltaRij().matrix())
+    real_sync = SV.timesync.synchronise
+
+    def refuse_ts02(sid, *args):
+        if sid == "TS02":
+            raise RegistrationError("time sync: station TS02: refused for the test")
+        return real_sync(sid, *args)
+
+    monkeypatch.setattr(SV.timesync, "synchronise", refuse_ts02)
+    with pytest.raises(RegistrationError, match="log.mcap: time sync: station TS02: refused for the test"):
+        P._prepare_and_preintegrate(pl, log, problem, lambda _m: None)

@@ -33,11 +33,11 @@ from .fusion import faults, input_checks, preprocess
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
-from .fusion.densify_forked import densify_forked
+from .fusion.densify_forked import start_densify_forked
 from .fusion.segments import smooth_in_segments, worker_count
-from .fusion.smoother import SmootherResult, smooth
+from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
-from .forked import ForkedTasks
+from .forked import ForkedTasks, can_fork as can_fork_tasks
 from .registration.stations import StationSetupConfig
 from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
@@ -338,21 +338,48 @@ def _prepare_total_stations(pipeline: Pipeline, log: SensorLog, problem: FusionP
                             say: Callable[[str], None]):
     """Set-ups, readings to ``n`` and time synchronisation; returns the problem with its prism
     readings and the :class:`~trackfusion.registration.survey.PrismSurvey` (None when off)."""
-    cfg = pipeline.config
-    if not cfg.factors.total_stations.enabled:
+    if not pipeline.config.factors.total_stations.enabled:
         return problem, None
-    from dataclasses import replace
+    return _with_survey(problem, _survey(pipeline, log, problem), say)
+
+
+def _survey(pipeline: Pipeline, log: SensorLog, problem: FusionProblem):
+    """:func:`~trackfusion.registration.survey.prepare_prisms` of the run (errors name the log)."""
     from .errors import RegistrationError
     from .registration.survey import prepare_prisms
+    cfg = pipeline.config
     try:
-        survey = prepare_prisms(log.total_stations, cfg.sensors.total_stations, cfg.factors.total_stations,
-                                problem.origin, problem.odometer)
+        return prepare_prisms(log.total_stations, cfg.sensors.total_stations, cfg.factors.total_stations,
+                              problem.origin, problem.odometer)
     except RegistrationError as exc:
         raise RegistrationError(f"{pipeline.path(cfg.inputs.log)}: {exc}") from None
+
+
+def _with_survey(problem: FusionProblem, survey, say: Callable[[str], None]) -> tuple[FusionProblem, Any]:
     for sid, st in survey.stations.items():
         how = f"r_max {st.sync.r_max:.3f}" if st.sync is not None else "given"
         say(f"total station {sid}: {st.t_s.size} readings, clock offset {st.offset_s:+.4f} s ({how})")
     return replace(problem, prisms=survey.readings), survey
+
+
+def _prepare_and_preintegrate(pipeline: Pipeline, log: SensorLog, problem: FusionProblem,
+                              say: Callable[[str], None]) -> tuple[FusionProblem, Any, Preintegrated | None]:
+    """:func:`_prepare_total_stations` in a forked child while this process preintegrates the IMU
+    for the smoother (the two are independent; the survey's arrays come back through a pipe,
+    GTSAM's preintegrated measurements could not). Returns (problem, survey, preintegrated);
+    ``preintegrated`` is None without total stations or where forking is not possible, and the
+    smoother then preintegrates itself. The stations' errors come first, as in turn."""
+    if not pipeline.config.factors.total_stations.enabled or not can_fork_tasks():
+        return (*_prepare_total_stations(pipeline, log, problem, say), None)
+    with ForkedTasks(always_fork=True) as child:
+        task = child.submit("preparing the total stations", _survey, pipeline, log, problem)
+        say(f"preintegrating {problem.imu.t_s.size} IMU samples while the total stations are prepared")
+        try:
+            pre = preintegrate_problem(problem)
+        except Exception:  # noqa: BLE001 (the smoother preintegrates again and raises it, after the stations')
+            pre = None
+        survey = task.result()
+    return (*_with_survey(problem, survey, say), pre)
 
 
 def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, table: dict[str, np.ndarray],
@@ -395,11 +422,35 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
     return out
 
 
-def _smooth_batch(problem: FusionProblem, say: Callable[[str], None]) -> SmootherResult:
+def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
+                  on_solved: Callable[..., None] | None = None,
+                  preintegrated: Preintegrated | None = None) -> SmootherResult:
     """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
-    (registration/two_stage.py), anything else by :func:`smooth`."""
+    (registration/two_stage.py), anything else by :func:`smooth` (``on_solved``, ``preintegrated``:
+    see there)."""
     from .registration.two_stage import smooth_two_stage, uses_two_stage
-    return smooth_two_stage(problem, progress=say) if uses_two_stage(problem) else smooth(problem, say)
+    return (smooth_two_stage(problem, progress=say, on_solved=on_solved, preintegrated=preintegrated)
+            if uses_two_stage(problem) else smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated))
+
+
+def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
+                        preintegrated: Preintegrated | None = None):
+    """One batch (:func:`_smooth_batch`) and its rows at the IMU rate: the densification starts
+    in forked children as soon as the solve is done and runs while this process computes the
+    marginals (fusion/densify_forked.py; the same rows as one densify call). Returns (result, dense);
+    the result's ``timings_s["densify_wait_s"]``: the wall time waited for the rows after the marginals."""
+    earth_rate_n = geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3)
+    started = []
+    with ForkedTasks(always_fork=True) as children:
+        def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
+            started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
+                                                accel_bias, geodesy.gravity_n(pos_n, problem.origin),
+                                                earth_rate_n, worker_count(cfg.smoother)))
+        res = _smooth_batch(problem, say, on_solved, preintegrated)
+        tic = time.perf_counter()
+        dense = started[-1].result()
+        res.timings_s["densify_wait_s"] = time.perf_counter() - tic
+        return res, dense
 
 
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:
@@ -442,7 +493,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     problem, info = build_problem(pipeline, log, say)
     found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
              "odometer_gross_errors": info.get("odometer_gross_errors")}
-    problem, survey = _prepare_total_stations(pipeline, log, problem, say)
+    problem, survey, preintegrated = _prepare_and_preintegrate(pipeline, log, problem, say)
     if survey is not None:  # issue 8: total-station clock jumps (registration/clock_jumps.py)
         found["clock_jumps"] += survey.info["clock_jumps"]
     timings["preprocess_s"] = time.perf_counter() - tic
@@ -487,14 +538,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                     res, dense, info["segments"] = segmented
                     tic, rows_every = time.perf_counter(), 1
                 else:
-                    res = _smooth_batch(problem, say)
+                    res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
                     tic, rows_every = time.perf_counter(), every
-                    # in forked workers (the same rows): fusion/densify_forked.py
-                    dense = densify_forked(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n,
-                                           res.gyro_bias_radps, res.accel_bias_mps2,
-                                           geodesy.gravity_n(res.pos_n, problem.origin),
-                                           geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate
-                                           else np.zeros(3), worker_count(sm))
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
                 table = evaluation_table = trajectory_table(dense, res, chainage, rows_every)

@@ -2,18 +2,21 @@
 ``independent_segments``) in forked workers: the keyframe intervals are independent
 (fusion/trajectory.py), so they are cut into ``workers`` parts at a multiple of
 :func:`~.trajectory.densify`'s block, each densified in its own forked child
-(:func:`trackfusion.workers.run_forked`); the parts' rows are the same arrays, bit for bit,
+(:class:`trackfusion.forked.ForkedTasks`); the parts' rows are the same arrays, bit for bit,
 as one :func:`~.trajectory.densify` call (tests/test_densify_forked.py). On the 54 min bridge
 this halves the 6-7 s of the densification; the rows (about 100 MB a part) come back through
-a pipe in a fraction of a second.
+a pipe in a fraction of a second. :func:`start_densify_forked` starts the children and returns
+at once: the pipeline starts them as soon as the solve is done (``smooth(on_solved=)``), so they
+run while this process computes the marginal sigmas, which need one core only.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..forked import ForkedTask, ForkedTasks
 from ..sensors.types import ImuData
-from ..workers import can_fork, run_forked
+from ..workers import can_fork
 from .trajectory import DenseTrajectory, densify
 
 #: intervals per block of :func:`densify` (its default); the parts are cut at multiples of it
@@ -42,19 +45,45 @@ def _part(i: int) -> DenseTrajectory:
     return d if b == key_idx.size - 1 else d.select(slice(None, -1))  # the next part starts there
 
 
+class Densifying:
+    """A densification started by :func:`start_densify_forked`: :meth:`result` waits for its parts."""
+
+    def __init__(self, parts: list[ForkedTask] | None = None, dense: DenseTrajectory | None = None):
+        self._parts, self._dense = parts, dense
+
+    def result(self) -> DenseTrajectory:
+        """The rows, as one :func:`~.trajectory.densify` call gives them (raises a part's failure)."""
+        if self._dense is None:
+            self._dense = DenseTrajectory.concatenate([part.result() for part in self._parts])
+            self._parts = None
+        return self._dense
+
+
+def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray,
+                         pos_n: np.ndarray, vel_n: np.ndarray, gyro_bias: np.ndarray, accel_bias: np.ndarray,
+                         gravity_n: np.ndarray, omega_ie_n: np.ndarray, workers: int) -> Densifying:
+    """Start :func:`densify_forked` (same arguments) in children forked by ``tasks`` (made with
+    ``always_fork=True``; leaving its ``with`` block on an error kills them) and return at once;
+    in this process, before returning, when forking is not possible or not worth it."""
+    global _JOB
+    bounds = part_bounds(key_idx.size - 1, workers)
+    if len(bounds) < 2 or not can_fork(len(bounds)):
+        return Densifying(dense=densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
+                                        omega_ie_n, block=BLOCK))
+    _JOB = ((imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n), bounds)
+    try:  # each child sees _JOB as it was at its fork
+        return Densifying([tasks.submit(f"densification, part {i + 1} of {len(bounds)}", _part, i)
+                           for i in range(len(bounds))])
+    finally:
+        _JOB = None
+
+
 def densify_forked(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray,
                    gyro_bias: np.ndarray, accel_bias: np.ndarray, gravity_n: np.ndarray, omega_ie_n: np.ndarray,
                    workers: int) -> DenseTrajectory:
     """:func:`~.trajectory.densify` (same arguments and result) in up to ``workers`` forked
     children at once (module docstring); in this process when forking is not possible here
     (:func:`trackfusion.workers.can_fork`) or the run is too short to be worth it."""
-    global _JOB
-    bounds = part_bounds(key_idx.size - 1, workers)
-    if len(bounds) < 2 or not can_fork(len(bounds)):
-        return densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n, block=BLOCK)
-    _JOB = ((imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n), bounds)
-    try:
-        parts = run_forked(_part, len(bounds))
-    finally:
-        _JOB = None
-    return DenseTrajectory.concatenate(parts)
+    with ForkedTasks(always_fork=True) as tasks:
+        return start_densify_forked(tasks, imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
+                                    omega_ie_n, workers).result()

@@ -722,10 +722,40 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
                     float(var[d + 6]) if with_scale else None)
 
 
+@dataclass
+class Preintegrated:
+    """The IMU preintegrated between a problem's keyframes (:func:`preintegrate_problem`):
+    keyframe sample indices ``key_idx`` (K,), K-1 ``pims`` and their ``params``
+    (:func:`~.preintegration.preintegrate`), and the wall time it took ``wall_s`` [s]."""
+
+    key_idx: np.ndarray
+    pims: list
+    params: list
+    wall_s: float
+
+
+def _keyframes(problem: FusionProblem) -> np.ndarray:
+    """The keyframes' IMU sample indices of :func:`smooth` (K,): the grid, and the GNSS fixes' times."""
+    gnss = problem.gnss if problem.factors.gnss.enabled else None
+    return keyframe_indices(problem.imu.t_s, problem.keyframes.spacing_s, gnss.t_s if gnss is not None else None)
+
+
+def preintegrate_problem(problem: FusionProblem) -> Preintegrated:
+    """The IMU of ``problem`` preintegrated between the keyframes :func:`smooth` makes (gravity
+    at the origin; the smoother sets each interval's once it has positions)."""
+    tic = time.perf_counter()
+    key_idx = _keyframes(problem)
+    omega_ie_n = geodesy.earth_rate_n(problem.origin) if problem.factors.imu.earth_rate else np.zeros(3)
+    gravity0 = geodesy.gravity_n(np.zeros((key_idx.size, 3)), problem.origin)
+    pims, params = preintegrate(problem.imu, key_idx, problem.imu_noise, gravity0, omega_ie_n)
+    return Preintegrated(key_idx, pims, params, time.perf_counter() - tic)
+
+
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
            hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
            slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False,
-           sigmas: bool = True) -> SmootherResult:
+           sigmas: bool = True, on_solved: Callable[..., None] | None = None,
+           preintegrated: "Preintegrated | None" = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
 
@@ -738,6 +768,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     it (fusion/segments.py, fusion/slow_states.py); with ``end_covariances`` the result carries the
     marginal covariances of the first and last bias and scale states (``SmootherResult.end_cov``);
     without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
+    ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
+    result's arrays once the solve is done, before the marginals (the pipeline starts the
+    densification in forked children there, fusion/densify_forked.py). ``preintegrated``: this
+    problem's :func:`preintegrate_problem`, done beforehand (the pipeline does it while the total
+    stations are prepared in a forked child); its ``wall_s`` counts in ``timings_s["preintegrate_s"]``.
     """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -746,17 +781,20 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if imu.t_s.size < 10:
         raise FusionError("the IMU log holds fewer than 10 samples")
     gnss = problem.gnss if fs.gnss.enabled else None
-    extra = gnss.t_s if gnss is not None else None
-    key_idx = keyframe_indices(imu.t_s, problem.keyframes.spacing_s, extra)
+    key_idx = _keyframes(problem)
     t_key = imu.t_s[key_idx]
     static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
     init_problem = _with_prism_fixes(problem) if gnss is None and problem.prisms is not None else problem
     alignment = join.alignment if join is not None else _alignment(init_problem)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
-    say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
-    gravity0 = geodesy.gravity_n(np.zeros((t_key.size, 3)), problem.origin)
-    pims, params = preintegrate(imu, key_idx, problem.imu_noise, gravity0, omega_ie_n)
-    timings["preintegrate_s"] = time.perf_counter() - tic
+    given = preintegrated is not None
+    if not given:
+        say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
+        preintegrated = preintegrate_problem(problem)
+    elif not np.array_equal(preintegrated.key_idx, key_idx):
+        raise ValueError("smooth: the given preintegration is of other keyframes")
+    pims, params = preintegrated.pims, preintegrated.params
+    timings["preintegrate_s"] = time.perf_counter() - tic + (preintegrated.wall_s if given else 0.0)
 
     tic = time.perf_counter()
     R0 = _chain_rotations(join.R_nb if join is not None else alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
@@ -871,13 +909,16 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
+    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
+    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
+    if on_solved is not None:
+        on_solved(key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
 
     tic = time.perf_counter()
     # the solve's last Bayes tree serves the marginals (linearised at most one converged step
     # before the estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
     tree = _eliminate(gfg) if b.soft.keys else sol.tree
-    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
         else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
     end_cov = None
@@ -890,7 +931,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
         hand_over = _hand_over(gfg, values, with_scale, t_key, k, bias_seg, seg, gnss, used)
     timings["marginals_s"] = time.perf_counter() - tic
-    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     scale = state.s[seg] if with_scale else None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(sol.cost),

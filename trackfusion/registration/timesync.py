@@ -126,11 +126,17 @@ def correlation_curve(t0_s: np.ndarray, t1_s: np.ndarray, speed_mps: np.ndarray,
     span at a lag are left out at that lag; ``nan`` where fewer than 10 pairs remain."""
     r = np.full(lags_s.size, np.nan)
     lo, hi = odo_t_s[0], odo_t_s[-1]
+    # consecutive pairs share their readings (one pair's end is the next one's start): the odometer
+    # is interpolated once per distinct reading time, the same values as reference_speed's
+    times, which = np.unique(np.r_[t0_s, t1_s], return_inverse=True)
+    start, end = which[:t0_s.size], which[t0_s.size:]
     for i, lag in enumerate(lags_s):
         a, b = t0_s - lag, t1_s - lag
         inside = (a >= lo) & (b <= hi)
         if np.count_nonzero(inside) >= 10:
-            r[i] = _pearson(speed_mps[inside], reference_speed(a[inside], b[inside], odo_t_s, odo_distance_m))
+            d = np.interp(times - lag, odo_t_s, odo_distance_m)
+            ref = np.abs(d[end[inside]] - d[start[inside]]) / (b[inside] - a[inside])  # = reference_speed
+            r[i] = _pearson(speed_mps[inside], ref)
     return r
 
 

@@ -145,10 +145,14 @@ def uses_two_stage(problem: FusionProblem) -> bool:
 
 
 def smooth_two_stage(problem: FusionProblem, settings: TwoStageSettings = TwoStageSettings(),
-                     progress: Callable[[str], None] | None = None) -> SmootherResult:
+                     progress: Callable[[str], None] | None = None,
+                     on_solved: Callable[..., None] | None = None,
+                     preintegrated=None) -> SmootherResult:
     """The survey smoothed in two stages (module docstring): the returned result's
     ``station_states`` / ``station_cov`` are the coarse solve's, its position sigmas include the
-    stations' uncertainty, and its timings add the coarse solve's as ``stations_s``."""
+    stations' uncertainty, and its timings add the coarse solve's as ``stations_s``.
+    ``on_solved``, ``preintegrated``: as :func:`~trackfusion.fusion.smoother.smooth`'s, for the
+    second stage (the survey's own keyframes)."""
     if problem.prisms is None or not problem.factors.total_stations.enabled:
         raise ValueError("smooth_two_stage: the problem has no total-station readings")
     say = progress or (lambda _m: None)
@@ -158,7 +162,7 @@ def smooth_two_stage(problem: FusionProblem, settings: TwoStageSettings = TwoSta
     stations_s = time.perf_counter() - tic
     say("two-stage solve, 2: the trajectory with the stations held")
     held = replace(problem, prisms=replace(problem.prisms, fixed_states=est.states))
-    res = smooth(held, say, initial=est.coarse)
+    res = smooth(held, say, initial=est.coarse, on_solved=on_solved, preintegrated=preintegrated)
     var = station_position_variance(problem.prisms, est.states, est.cov, res, settings.sigma_window_s)
     res.sigma_pos_n_m = np.sqrt(res.sigma_pos_n_m**2 + var)
     res.station_cov = est.cov
