@@ -614,8 +614,11 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
     if early is None:
         images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
                                      raw, FUSED_POSE_RATE_HZ)
-    else:
-        images = early.result()
+    else:  # the metrics' figures drawn here while the child may still be drawing the tables'
+        from .report.html import metrics_images
+        from .sensors.fileio import read_json
+        drawn = metrics_images(read_json(stage / "metrics.json")) if cfg.outputs.report else {}
+        images = {**early.result(), **drawn}
     if cfg.outputs.report:
         from .report.html import write_report
         tables = {**({"trajectory.csv": table} if table is not None else {}),  # no re-parsing of these CSVs
