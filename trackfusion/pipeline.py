@@ -38,6 +38,7 @@ from .fusion.segments import smooth_in_segments, worker_count
 from .fusion.smoother import SmootherResult, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .forked import ForkedTasks
+from .output_prefetch import OutputPrefetch
 from .registration.stations import StationSetupConfig
 from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
@@ -462,6 +463,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
+            prefetch = OutputPrefetch(None, False)  # (nothing read ahead but for parallel segments)
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
                 from .sensors.spill import SpillArrays, SpilledImu
                 spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
@@ -482,7 +484,11 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
                 del stream
             else:
-                segmented = smooth_in_segments(problem, every, say)  # parallel segments (fusion/segments.py)
+                # parallel segments (fusion/segments.py); the outputs' reading and imports on the CPU the
+                # first segment to finish leaves idle (output_prefetch.py)
+                prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None,
+                                          cfg.outputs.report)
+                segmented = smooth_in_segments(problem, every, say, prefetch)
                 if segmented is not None:  # the rows come densified and decimated
                     res, dense, info["segments"] = segmented
                     tic, rows_every = time.perf_counter(), 1
@@ -527,7 +533,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
             say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
             from .evaluation.reference import compare_with_reference
             metrics.update(compare_with_reference(evaluation_table, pipeline.path(cfg.inputs.reference),
-                                                  problem.origin.to_dict()))
+                                                  problem.origin.to_dict(), prefetch.reference()))
         timings["output_s"] = time.perf_counter() - tic
         timings["total_s"] = time.perf_counter() - wall
         metrics["timings_s"] = timings

@@ -40,9 +40,10 @@ def consistency_detail(table: dict[str, np.ndarray], reference: Trajectory) -> d
 
 
 def compare_with_reference(table: dict[str, np.ndarray], reference_path: str | Path,
-                           origin: dict | None = None) -> dict:
-    """Metrics of a trajectory table (trajectory.csv columns) against a reference CSV."""
-    reference, meta = read_trajectory(reference_path)
+                           origin: dict | None = None, read: tuple[Trajectory, dict] | None = None) -> dict:
+    """Metrics of a trajectory table (trajectory.csv columns) against a reference CSV; ``read``:
+    the reference as :func:`~.api.read_trajectory` of ``reference_path`` returned it, when read before."""
+    reference, meta = read if read is not None else read_trajectory(reference_path)
     if origin is not None:
         check_same_origin("trajectory", origin, reference_path, meta.get("origin"))
     estimate = Trajectory.from_columns(table, source="trajectory")
