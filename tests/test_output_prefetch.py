@@ -78,3 +78,28 @@ def test_nothing_read_without_a_reference_or_a_call(tmp_path):
     assert OutputPrefetch(None, figures=False).reference() is None
     _reference(tmp_path / "truth.csv", n=50)
     assert OutputPrefetch(tmp_path / "truth.csv", figures=False).reference() is None  # never called
+
+
+@pytest.mark.skipif(not can_fork(2), reason="needs fork and two CPUs")
+def test_reference_read_in_a_forked_child(tmp_path):
+    from trackfusion.forked import ForkedTasks
+    _reference(tmp_path / "truth.csv", n=500)
+    direct, meta = read_trajectory(tmp_path / "truth.csv")
+    with ForkedTasks() as background:
+        prefetch = OutputPrefetch(tmp_path / "truth.csv", figures=False)
+        prefetch.read_in_child(background)
+        assert prefetch._task is not None and prefetch._task.pid is not None  # in a child
+        read, read_meta = prefetch.reference()
+    assert read_meta == meta
+    assert all(np.array_equal(getattr(read, f), getattr(direct, f)) for f in ("t_s", "pos_n_m", "vel_n_mps"))
+    (tmp_path / "bad.csv").write_text("t_s,e_m\n1,2\n3,x\n")
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SensorDataError) as direct_error:
+        read_trajectory(tmp_path / "bad.csv")
+    with ForkedTasks() as background:
+        prefetch = OutputPrefetch(tmp_path / "bad.csv", figures=False)
+        prefetch.read_in_child(background)
+        with pytest.raises(SensorDataError) as later:
+            prefetch.reference()
+        background.tasks = []  # (its failure raised here, not again by the with block)
+    assert str(later.value) == str(direct_error.value)

@@ -493,6 +493,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                     res, dense, info["segments"] = segmented
                     tic, rows_every = time.perf_counter(), 1
                 else:
+                    prefetch.read_in_child(background)  # on the CPU the batch solve leaves idle
                     res = _smooth_batch(problem, say)
                     tic, rows_every = time.perf_counter(), every
                     # in forked workers (the same rows): fusion/densify_forked.py
