@@ -65,9 +65,10 @@ def main() -> None:
     tic = time.perf_counter()
     # the child reports its own VmHWM: ru_maxrss of a child includes this process's resident size
     # at the fork (the simulation above, when it was not cached)
-    child = ("import sys\nfrom trackfusion.cli import main\ncode = main(sys.argv[1:])\n"
+    # and it ends as the trackfusion command does (cli.entry: cli.exit_now)
+    child = ("import sys\nfrom trackfusion.cli import exit_now, main\ncode = main(sys.argv[1:])\n"
              "print(next(l for l in open('/proc/self/status') if l.startswith('VmHWM')).split()[1])\n"
-             "sys.exit(code)")
+             "exit_now(code)")
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
         proc = subprocess.Popen([sys.executable, "-c", child, "run", str(sim / "pipeline.yaml"), "--out", str(out)],
                                 stdout=stdout, stderr=stderr, text=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import NoReturn
 
 from .errors import TrackfusionError
 
@@ -177,5 +178,30 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def exit_now(code: int) -> NoReturn:
+    """End the process with ``code`` at once: the ``atexit`` handlers run and stdout/stderr are
+    flushed, but the interpreter's teardown of every module and object (about a second after a
+    ``run``, with scipy, gtsam and matplotlib loaded: docs/solver_speed.md) is skipped. Every output
+    file is closed by then (written atomically). With threads other than the main one still
+    running, the ordinary exit (which waits for them)."""
+    import atexit
+    import os
+    import threading
+    if threading.active_count() > 1:
+        sys.exit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken stream: nothing more can be said on it
+            pass
+    os._exit(code)
+
+
+def entry() -> NoReturn:
+    """The ``trackfusion`` command (pyproject.toml): :func:`main`, then :func:`exit_now`."""
+    exit_now(main())
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

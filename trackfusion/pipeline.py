@@ -38,6 +38,7 @@ from .fusion.segments import smooth_in_segments, worker_count
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .forked import ForkedTasks, can_fork as can_fork_tasks
+from .output_prefetch import OutputPrefetch
 from .registration.stations import StationSetupConfig
 from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
@@ -513,6 +514,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
+            prefetch = OutputPrefetch(None, False)  # (nothing read ahead but for parallel segments)
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
                 from .sensors.spill import SpillArrays, SpilledImu
                 spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
@@ -533,11 +535,16 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
                 del stream
             else:
-                segmented = smooth_in_segments(problem, every, say)  # parallel segments (fusion/segments.py)
+                # parallel segments (fusion/segments.py); the outputs' reading and imports on the CPU the
+                # first segment to finish leaves idle (output_prefetch.py)
+                prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None,
+                                          cfg.outputs.report)
+                segmented = smooth_in_segments(problem, every, say, prefetch)
                 if segmented is not None:  # the rows come densified and decimated
                     res, dense, info["segments"] = segmented
                     tic, rows_every = time.perf_counter(), 1
                 else:
+                    prefetch.read_in_child(background)  # on the CPU the batch solve leaves idle
                     res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
                     tic, rows_every = time.perf_counter(), every
                 say("writing the trajectory at the output rate")
@@ -572,7 +579,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
             say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
             from .evaluation.reference import compare_with_reference
             metrics.update(compare_with_reference(evaluation_table, pipeline.path(cfg.inputs.reference),
-                                                  problem.origin.to_dict()))
+                                                  problem.origin.to_dict(), prefetch.reference()))
         timings["output_s"] = time.perf_counter() - tic
         timings["total_s"] = time.perf_counter() - wall
         metrics["timings_s"] = timings
@@ -659,8 +666,11 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
     if early is None:
         images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
                                      raw, FUSED_POSE_RATE_HZ)
-    else:
-        images = early.result()
+    else:  # the metrics' figures drawn here while the child may still be drawing the tables'
+        from .report.html import metrics_images
+        from .sensors.fileio import read_json
+        drawn = metrics_images(read_json(stage / "metrics.json")) if cfg.outputs.report else {}
+        images = {**early.result(), **drawn}
     if cfg.outputs.report:
         from .report.html import write_report
         tables = {**({"trajectory.csv": table} if table is not None else {}),  # no re-parsing of these CSVs

@@ -30,7 +30,7 @@ def fork_context():
     return multiprocessing.get_context("fork")
 
 
-def run_forked(task: Callable[[int], Any], n: int) -> list[Any]:
+def run_forked(task: Callable[[int], Any], n: int, while_waiting: Callable[[], None] | None = None) -> list[Any]:
     """``[task(0), ..., task(n - 1)]``, each call in its own forked child, all at once
     (:class:`trackfusion.forked.ForkedTasks`: the parent's memory as it was at the fork, nothing
     of it pickled; only the return value travels back through a pipe, so keep it to numpy arrays
@@ -38,8 +38,13 @@ def run_forked(task: Callable[[int], Any], n: int) -> list[Any]:
     exception (a :class:`~trackfusion.errors.TrackfusionError` stays one; a child that died
     without an answer: :class:`~trackfusion.forked.ForkedTaskError`), and the children still
     running are then killed. Every child has exited when this returns or raises.
+    ``while_waiting()``: called here once the first child has finished, while the others still
+    run (work for the CPU that child leaves idle; it must not raise).
     """
-    from .forked import ForkedTasks
+    from .forked import ForkedTasks, wait_first
     with ForkedTasks(always_fork=True) as tasks:
         handles = [tasks.submit(f"worker process {i}", task, i) for i in range(n)]
+        if while_waiting is not None:
+            wait_first(handles)
+            while_waiting()
         return [h.result() for h in handles]

@@ -29,20 +29,28 @@ def normalised_errors(table: dict[str, np.ndarray], reference: Trajectory) -> di
 
 def consistency(table: dict[str, np.ndarray], reference: Trajectory) -> dict[str, float]:
     """RMS of (estimate - reference) / sigma for e, n, u over the samples inside the reference span."""
-    return {axis: float(np.sqrt(np.mean(z**2))) for axis, z in normalised_errors(table, reference).items()}
+    return _rms_by_axis(normalised_errors(table, reference))
 
 
 def consistency_detail(table: dict[str, np.ndarray], reference: Trajectory) -> dict[str, dict]:
     """Per axis: RMS(z), effective independent samples, the 95 % interval of RMS(z) for honest
     sigmas, and the sample count (evaluation/consistency.py)."""
-    return {axis: {**consistency_of(z), "samples": int(z.size)}
-            for axis, z in normalised_errors(table, reference).items()}
+    return _detail_by_axis(normalised_errors(table, reference))
+
+
+def _rms_by_axis(z_by_axis: dict[str, np.ndarray]) -> dict[str, float]:
+    return {axis: float(np.sqrt(np.mean(z**2))) for axis, z in z_by_axis.items()}
+
+
+def _detail_by_axis(z_by_axis: dict[str, np.ndarray]) -> dict[str, dict]:
+    return {axis: {**consistency_of(z), "samples": int(z.size)} for axis, z in z_by_axis.items()}
 
 
 def compare_with_reference(table: dict[str, np.ndarray], reference_path: str | Path,
-                           origin: dict | None = None) -> dict:
-    """Metrics of a trajectory table (trajectory.csv columns) against a reference CSV."""
-    reference, meta = read_trajectory(reference_path)
+                           origin: dict | None = None, read: tuple[Trajectory, dict] | None = None) -> dict:
+    """Metrics of a trajectory table (trajectory.csv columns) against a reference CSV; ``read``:
+    the reference as :func:`~.api.read_trajectory` of ``reference_path`` returned it, when read before."""
+    reference, meta = read if read is not None else read_trajectory(reference_path)
     if origin is not None:
         check_same_origin("trajectory", origin, reference_path, meta.get("origin"))
     estimate = Trajectory.from_columns(table, source="trajectory")
@@ -51,7 +59,8 @@ def compare_with_reference(table: dict[str, np.ndarray], reference_path: str | P
     err = result.series.error_m
     absolute = {c: {"rms_mm": float(np.sqrt(np.mean(err[:, i] ** 2)) * 1e3),
                     "max_abs_mm": float(np.max(np.abs(err[:, i])) * 1e3)} for i, c in enumerate(COMPONENTS)}
+    z = normalised_errors(table, reference)  # once for both consistency entries
     return {"reference": str(reference_path), "relative_accuracy": evaluation["relative_accuracy"],
             "evaluation": {k: v for k, v in evaluation.items() if k != "relative_accuracy"},
-            "absolute_error": absolute, "consistency_rms_error_over_sigma": consistency(table, reference),
-            "consistency": consistency_detail(table, reference)}
+            "absolute_error": absolute, "consistency_rms_error_over_sigma": _rms_by_axis(z),
+            "consistency": _detail_by_axis(z)}

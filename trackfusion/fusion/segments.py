@@ -170,13 +170,16 @@ def _job(s: int) -> SegmentResult:
     return smooth_segment(problem, segments[s], every)
 
 
-def smooth_in_segments(problem: FusionProblem, every: int, progress: Callable[[str], None] | None = None
+def smooth_in_segments(problem: FusionProblem, every: int, progress: Callable[[str], None] | None = None,
+                       while_waiting: Callable[[], None] | None = None
                        ) -> tuple[SmootherResult, DenseTrajectory, dict[str, Any]] | None:
     """Smooth ``problem`` in parallel segments (module docstring); None when the run is not cut
     (:func:`independent_segments` false, or one segment: smooth it in one batch). Returns the stitched keyframe result, the stitched
     trajectory at every ``every``-th IMU sample (global index a multiple of it) and the
     ``segments`` section of metrics.json. The segments run in forked processes when possible
-    (:func:`trackfusion.workers.can_fork`), else one after the other here (the same result)."""
+    (:func:`trackfusion.workers.can_fork`), else one after the other here (the same result).
+    ``while_waiting()``: called once the first worker process has finished, while the others
+    still run (:func:`trackfusion.workers.run_forked`; not called without worker processes)."""
     global _JOB
     if not independent_segments(problem):
         return None
@@ -192,7 +195,7 @@ def smooth_in_segments(problem: FusionProblem, every: int, progress: Callable[[s
     if forked:
         _JOB = (problem, segments, every)
         try:
-            parts = run_forked(_job, len(segments))
+            parts = run_forked(_job, len(segments), while_waiting)
         finally:
             _JOB = None
     else:

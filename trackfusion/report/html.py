@@ -195,7 +195,19 @@ def summary_section(run: RunFiles) -> str:
     return _section("summary", "Run summary", verdict + _kv(rows) + settings)
 
 
-def accuracy_section(m: dict) -> str:
+def metrics_images(m: dict) -> dict[str, str]:
+    """The ``<img>`` tags (alt text -> tag) of the figures drawn from ``metrics.json`` (``m``, as
+    read back from the file): the relative accuracy against the reference, when evaluated. The
+    pipeline draws them while its forked child still draws the table figures."""
+    ra, ev = m.get("relative_accuracy"), m.get("evaluation")
+    if not ra or not ev:
+        return {}
+    return {"relative accuracy": _img(figures.relative_accuracy(ra, ev["thresholds"]), "relative accuracy")}
+
+
+def accuracy_section(m: dict, images: dict[str, str] | None = None) -> str:
+    """The relative-accuracy section; its figure from ``images`` (:func:`metrics_images`) when
+    drawn before."""
     ra, ev = m.get("relative_accuracy"), m.get("evaluation")
     if not ra or not ev:
         return ""
@@ -209,7 +221,8 @@ def accuracy_section(m: dict) -> str:
                      "ADEV limit (mm)": thr["adev_mm"], "ADEV pass": entry.get("adev_pass"),
                      "checked": comp in thr["components"],
                      "absolute RMS (mm)": m.get("absolute_error", {}).get(comp, {}).get("rms_mm")})
-    body = _img(figures.relative_accuracy(ra, thr), "relative accuracy") + _table(rows)
+    image = (images or {}).get("relative accuracy") or metrics_images(m)["relative accuracy"]
+    body = image + _table(rows)
     return _section("relative-accuracy", "Relative accuracy against the reference", body)
 
 
@@ -341,7 +354,7 @@ def trajectory_sections(run: RunFiles) -> list[str]:
 def render_report(run: RunFiles) -> str:
     """The whole HTML document of a run (a string)."""
     m = run.metrics
-    sections = [summary_section(run), *trajectory_sections(run), accuracy_section(m), geometry_section(run), time_sync_section(m), registration_section(m),
+    sections = [summary_section(run), *trajectory_sections(run), accuracy_section(m, run.images), geometry_section(run), time_sync_section(m), registration_section(m),
                 rejected_section(m), faults_section(m)]
     sections = [s for s in sections if s]
     nav = "".join(f"<a href='#{sid}'>{_e(title)}</a>" for sid, title in

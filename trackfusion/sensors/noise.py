@@ -8,7 +8,6 @@ the unit of the returned series.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..errors import SimulationError
 
@@ -46,6 +45,7 @@ def gauss_markov(n: int, dt_s: float, sigma: float, tau_s: float, rng: np.random
     phi = np.exp(-dt_s / tau_s)
     drive = np.sqrt(1.0 - phi**2) * sigma * w
     x0 = sigma * rng.standard_normal()  # state before the first sample, stationary
+    from scipy.signal import lfilter  # here: scipy.signal costs ~2 s to import, and only the simulator needs it
     out, _ = lfilter([1.0], [1.0, -phi], drive, zi=[phi * x0])
     return out
 

@@ -1,0 +1,105 @@
+"""The outputs' reading ahead while the last parallel segment is smoothed (trackfusion/output_prefetch.py,
+workers.run_forked's ``while_waiting``): called once, when the first worker has finished and the
+others still run; the reference read ahead gives the metrics of the reference read afterwards,
+and a reference that cannot be read raises the same error, when asked for."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from trackfusion.errors import SensorDataError
+from trackfusion.evaluation.api import read_trajectory
+from trackfusion.evaluation.reference import compare_with_reference
+from trackfusion.output_prefetch import OutputPrefetch
+from trackfusion.sensors.fileio import write_csv_table
+from trackfusion.workers import can_fork, run_forked
+
+ORIGIN = {"lat_deg": 45.0, "lon_deg": 7.0, "h_m": 300.0}
+
+
+@pytest.mark.skipif(not can_fork(2), reason="needs fork and two CPUs")
+def test_while_waiting_runs_once_after_the_first_worker_and_before_the_last(tmp_path):
+    def task(i):
+        if i == 1:
+            time.sleep(2.0)
+        (tmp_path / f"done{i}").write_text("")
+        return i * 10
+
+    seen = []
+
+    def while_waiting():
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
+    assert run_forked(task, 2, while_waiting) == [0, 10]
+    assert seen == [["done0"]]
+
+
+def _reference(path, n=4000, t0=0.0):
+    """A straight run at 2 m/s along e, sampled at 100 Hz (trajectory.csv / truth.csv columns)."""
+    t = t0 + np.arange(n) * 0.01
+    zeros, ones = np.zeros(n), np.ones(n)
+    cols = {"t_s": t, "e_m": 2.0 * t, "n_m": 0.001 * np.sin(t), "u_m": 0.002 * np.cos(0.5 * t),
+            "qw": ones, "qx": zeros, "qy": zeros, "qz": zeros, "ve_mps": 2.0 * ones,
+            "vn_mps": 0.001 * np.cos(t), "vu_mps": -0.001 * np.sin(0.5 * t), "chainage_m": 2.0 * t}
+    write_csv_table(path, cols, {c: "" for c in cols}, "n", ORIGIN, fmt="%.17g")
+    return cols
+
+
+def test_reference_read_ahead_gives_the_same_metrics(tmp_path):
+    ref = _reference(tmp_path / "truth.csv")
+    rng = np.random.default_rng(3)
+    est = {**ref, **{c: ref[c] + 1e-3 * rng.standard_normal(ref[c].size) for c in ("e_m", "n_m", "u_m")},
+           **{f"sigma_{a}_m": np.full(ref["t_s"].size, 1e-3) for a in "enu"}}
+    prefetch = OutputPrefetch(tmp_path / "truth.csv", figures=False)
+    prefetch()
+    read = prefetch.reference()
+    assert read is not None and prefetch.reference() is None  # handed over once
+    assert compare_with_reference(est, tmp_path / "truth.csv", ORIGIN, read) == \
+        compare_with_reference(est, tmp_path / "truth.csv", ORIGIN)
+
+
+def test_unreadable_reference_raises_its_error_when_asked_for(tmp_path):
+    _reference(tmp_path / "truth.csv", n=50)
+    text = (tmp_path / "truth.csv").read_text().splitlines()
+    text[7] = text[7].replace(",", ",x", 1)
+    (tmp_path / "truth.csv").write_text("\n".join(text) + "\n")
+    with pytest.raises(SensorDataError) as direct:
+        read_trajectory(tmp_path / "truth.csv")
+    prefetch = OutputPrefetch(tmp_path / "truth.csv", figures=False)
+    prefetch()  # does not raise
+    with pytest.raises(SensorDataError) as later:
+        prefetch.reference()
+    assert str(later.value) == str(direct.value) and str(tmp_path / "truth.csv") in str(later.value)
+
+
+def test_nothing_read_without_a_reference_or_a_call(tmp_path):
+    assert OutputPrefetch(None, figures=False).reference() is None
+    _reference(tmp_path / "truth.csv", n=50)
+    assert OutputPrefetch(tmp_path / "truth.csv", figures=False).reference() is None  # never called
+
+
+@pytest.mark.skipif(not can_fork(2), reason="needs fork and two CPUs")
+def test_reference_read_in_a_forked_child(tmp_path):
+    from trackfusion.forked import ForkedTasks
+    _reference(tmp_path / "truth.csv", n=500)
+    direct, meta = read_trajectory(tmp_path / "truth.csv")
+    with ForkedTasks() as background:
+        prefetch = OutputPrefetch(tmp_path / "truth.csv", figures=False)
+        prefetch.read_in_child(background)
+        assert prefetch._task is not None and prefetch._task.pid is not None  # in a child
+        read, read_meta = prefetch.reference()
+    assert read_meta == meta
+    assert all(np.array_equal(getattr(read, f), getattr(direct, f)) for f in ("t_s", "pos_n_m", "vel_n_mps"))
+    (tmp_path / "bad.csv").write_text("t_s,e_m\n1,2\n3,x\n")
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(SensorDataError) as direct_error:
+        read_trajectory(tmp_path / "bad.csv")
+    with ForkedTasks() as background:
+        prefetch = OutputPrefetch(tmp_path / "bad.csv", figures=False)
+        prefetch.read_in_child(background)
+        with pytest.raises(SensorDataError) as later:
+            prefetch.reference()
+        background.tasks = []  # (its failure raised here, not again by the with block)
+    assert str(later.value) == str(direct_error.value)
