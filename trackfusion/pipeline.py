@@ -437,8 +437,9 @@ def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
 def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
                         preintegrated: Preintegrated | None = None):
     """One batch (:func:`_smooth_batch`) and its rows at the IMU rate: the densification starts
-    in forked children as soon as the solve is done and runs while this process computes the
-    marginals (fusion/densify_forked.py; the same rows as one densify call). Returns (result, dense);
+    in forked children (one fewer than the workers: this process computes the marginals on a
+    core of its own meanwhile) as soon as the solve is done (fusion/densify_forked.py; the same
+    rows as one densify call). Returns (result, dense);
     the result's ``timings_s["densify_wait_s"]``: the wall time waited for the rows after the marginals."""
     earth_rate_n = geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3)
     started = []
@@ -446,7 +447,7 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
         def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
             started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
                                                 accel_bias, geodesy.gravity_n(pos_n, problem.origin),
-                                                earth_rate_n, worker_count(cfg.smoother)))
+                                                earth_rate_n, max(1, worker_count(cfg.smoother) - 1)))
         res = _smooth_batch(problem, say, on_solved, preintegrated)
         tic = time.perf_counter()
         dense = started[-1].result()

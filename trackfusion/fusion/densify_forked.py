@@ -64,10 +64,11 @@ def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, 
                          gravity_n: np.ndarray, omega_ie_n: np.ndarray, workers: int) -> Densifying:
     """Start :func:`densify_forked` (same arguments) in children forked by ``tasks`` (made with
     ``always_fork=True``; leaving its ``with`` block on an error kills them) and return at once;
-    in this process, before returning, when forking is not possible or not worth it."""
+    ``workers`` 1: one child does it all, beside this process. In this process, before
+    returning, when forking is not possible or the run too short to be worth it."""
     global _JOB
     bounds = part_bounds(key_idx.size - 1, workers)
-    if len(bounds) < 2 or not can_fork(len(bounds)):
+    if key_idx.size - 1 < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # one part: one child beside this process
         return Densifying(dense=densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
                                         omega_ie_n, block=BLOCK))
     _JOB = ((imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n), bounds)
@@ -84,6 +85,8 @@ def densify_forked(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: n
     """:func:`~.trajectory.densify` (same arguments and result) in up to ``workers`` forked
     children at once (module docstring); in this process when forking is not possible here
     (:func:`trackfusion.workers.can_fork`) or the run is too short to be worth it."""
+    if len(part_bounds(key_idx.size - 1, workers)) < 2:  # waited for at once: one part is done here
+        return densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n, block=BLOCK)
     with ForkedTasks(always_fork=True) as tasks:
         return start_densify_forked(tasks, imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
                                     omega_ie_n, workers).result()
