@@ -108,7 +108,7 @@ def test_chunked_run_leaves_the_wheel_path_out(runs, tmp_path):
     """As simulated (wheel path on), a run in chunks is smoothed without it and says so."""
     d = runs[0]
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
-    assert data["factors"]["wheel_path"] is True
+    assert data["factors"]["wheel_path"]["enabled"] is True
     data.setdefault("smoother", {}).update(chunk_s=CHUNK_S, overlap_s=OVERLAP_S, workers=1)
     data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
     said = []

@@ -34,7 +34,12 @@ SETTINGS = slow_pass.SlowPassSettings()
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory):
     prob = short_open_track_problem(tmp_path_factory.mktemp("slow-priors"), 4)
-    return replace(prob, smoother=prob.smoother.model_copy(update={"overlap_s": 30.0, "workers": 2, "slow_priors": True}))
+    # the opt-in priors were built and measured on 0.1 s keyframes with the wheel path on every
+    # 2nd one (the simulated pipelines before their 0.2 s keyframes: docs/solver_speed.md)
+    wheel = prob.factors.wheel_path.model_copy(update={"keyframe_step": 2})
+    return replace(prob, keyframes=prob.keyframes.model_copy(update={"spacing_s": 0.1}),
+                   factors=prob.factors.model_copy(update={"wheel_path": wheel}),
+                   smoother=prob.smoother.model_copy(update={"overlap_s": 30.0, "workers": 2, "slow_priors": True}))
 
 
 @pytest.fixture(scope="module")

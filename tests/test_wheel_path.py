@@ -133,9 +133,10 @@ def test_wheel_path_sharpens_the_short_wave_trajectory(tmp_path):
     simulate_to_dir("open-track-gnss", tmp_path, seed=2, overrides=SHORT_OPEN_TRACK)
     data = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
     data.setdefault("smoother", {})["workers"] = 1
+    simulated = data["factors"]["wheel_path"]  # on, on every keyframe (0.2 s)
     out = {}
     for on in (False, True):
-        data["factors"]["wheel_path"] = on
+        data["factors"]["wheel_path"] = simulated if on else False
         res = run(parse_pipeline(data, str(tmp_path / "pipeline.yaml"), tmp_path), tmp_path / f"out-{on}")
         out[on] = res.metrics
     assert out[True]["factors"]["wheel_path"] > 700 and "wheel_path" not in out[False]["factors"]
