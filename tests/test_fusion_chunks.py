@@ -35,6 +35,7 @@ def _run(d, chunk_s):
     # workers 1: the batch is one batch (with this overlap it would be cut into parallel segments)
     data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S, workers=1)
     data["factors"]["wheel_path"] = False  # chunked runs leave it out (test_chunked_run_leaves_the_wheel_path_out)
+    data["keyframes"]["spacing_s"] = data["keyframes"]["spacing_without_wheel_path_s"]  # and so run on these
     return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
 
 
@@ -115,7 +116,8 @@ def test_chunked_run_leaves_the_wheel_path_out(runs, tmp_path):
     res = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out", progress=said.append)
     assert "wheel_path" not in res.metrics["factors"]
     assert "hand-over" in res.metrics["factors_left_out"]["wheel_path"]
-    assert any(m.startswith("factors.wheel_path left out") for m in said)
+    assert any(m.startswith("factors.wheel_path left out") and "keyframes every 0.1 s" in m for m in said)
+    assert data["keyframes"]["spacing_s"] == 0.2 and res.metrics["keyframes"] == runs[2].metrics["keyframes"]
     np.testing.assert_array_equal(res.trajectory["e_m"], runs[2].trajectory["e_m"])
 
 

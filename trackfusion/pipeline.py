@@ -511,7 +511,9 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     if chunked and problem.factors.wheel_path.enabled:  # fusion/chunks.py leaves it out
         from .fusion.chunks import WHEEL_PATH_LEFT_OUT
         info["factors_left_out"] = {"wheel_path": WHEEL_PATH_LEFT_OUT}
-        say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}")
+        say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}"
+            + (f"; keyframes every {cfg.keyframes.spacing_without_wheel_path_s:g} s (keyframes.spacing_without_wheel_path_s)"
+               if cfg.keyframes.spacing_without_wheel_path_s else ""))
     with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's

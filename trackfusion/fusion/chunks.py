@@ -48,10 +48,12 @@ WHEEL_PATH_LEFT_OUT = ("the chunk hand-over does not carry it yet (a seam at the
 
 
 def without_wheel_path(problem: FusionProblem) -> FusionProblem:
-    """``problem`` with ``factors.wheel_path`` switched off (see :data:`WHEEL_PATH_LEFT_OUT`)."""
-    fs = problem.factors
+    """``problem`` with ``factors.wheel_path`` switched off (see :data:`WHEEL_PATH_LEFT_OUT`), on
+    ``keyframes.spacing_without_wheel_path_s`` when that is set."""
+    fs, kf = problem.factors, problem.keyframes
+    spacing_s = kf.spacing_without_wheel_path_s or kf.spacing_s
     return replace(problem, factors=fs.model_copy(update={"wheel_path": fs.wheel_path.model_copy(
-        update={"enabled": False})}))
+        update={"enabled": False})}), keyframes=kf.model_copy(update={"spacing_s": spacing_s}))
 
 
 def _slice_time(t_s: np.ndarray, a_s: float, b_s: float) -> slice:

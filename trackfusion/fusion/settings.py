@@ -163,10 +163,14 @@ class FactorSettings(_Strict):
 
 
 class KeyframeSettings(_Strict):
-    """``spacing_s``: time between keyframes; ``bias_segment_s``: length of the segments over
-    which one IMU bias state holds (random walk between segments; fusion/preintegration.py)."""
+    """``spacing_s``: time between keyframes; ``spacing_without_wheel_path_s``: the spacing of a
+    run that leaves the configured wheel-path factor out (runs in chunks, fusion/chunks.py),
+    null: ``spacing_s`` (the factor lets keyframes be sparser: docs/solver_speed.md);
+    ``bias_segment_s``: length of the segments over which one IMU bias state holds (random walk
+    between segments; fusion/preintegration.py)."""
 
     spacing_s: float = Field(0.1, gt=0, le=5.0)
+    spacing_without_wheel_path_s: float | None = Field(None, gt=0, le=5.0)
     bias_segment_s: float = Field(300.0, gt=0)
 
 
