@@ -1,5 +1,6 @@
 """The densification of a one-batch run in forked workers (fusion/densify_forked.py) gives the
-same rows, bit for bit, as one densify() call; and the parts are cut at densify's blocks."""
+same rows, bit for bit, as one densify() call (in two children, in one, or here); and the parts
+are cut at densify's blocks."""
 
 from __future__ import annotations
 
@@ -46,9 +47,11 @@ def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
     monkeypatch.setattr(DF, "BLOCK", 20)
     assert DF.part_bounds(keyframed[1].size - 1, 2) == [(0, 40), (40, 100)]
     whole = densify(*keyframed, block=20)
-    for forked in (True, False):  # in forked children, or in one call here
+    for forked, workers, children in ((True, 2, 2), (True, 1, 1), (False, 2, 0)):  # forked parts, or one call here
         monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
-        parts = DF.densify_forked(*keyframed, workers=2)
+        with ForkedTasks(always_fork=True) as tasks:
+            parts = DF.start_densify_forked(tasks, *keyframed, workers=workers).result()
+            assert len(tasks.tasks) == children
         for name in ("t_s", "R_nb", "pos_n", "vel_n"):
             np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name))
 

@@ -62,15 +62,16 @@ class Densifying:
 def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray,
                          pos_n: np.ndarray, vel_n: np.ndarray, gyro_bias: np.ndarray, accel_bias: np.ndarray,
                          gravity_n: np.ndarray, omega_ie_n: np.ndarray, workers: int) -> Densifying:
-    """Start :func:`densify_forked` (same arguments) in children forked by ``tasks`` (made with
-    ``always_fork=True``; leaving its ``with`` block on an error kills them) and return at once;
-    ``workers`` 1: one child does it all, beside this process. In this process, before
-    returning, when forking is not possible or the run too short to be worth it."""
+    """Start :func:`~.trajectory.densify` of these keyframes (same arguments; ``omega_ie_n`` the
+    Earth rate) in up to ``workers`` children forked by ``tasks`` (made with ``always_fork=True``;
+    leaving its ``with`` block on an error kills them) and return at once; ``workers`` 1: one
+    child does it all, beside this process. In this process, before returning, when forking is
+    not possible here (:func:`trackfusion.workers.can_fork`) or the run is too short to be worth it."""
     global _JOB
-    bounds = part_bounds(key_idx.size - 1, workers)
-    if key_idx.size - 1 < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # one part: one child beside this process
+    if key_idx.size - 1 < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # (a child needs a CPU beside this one)
         return Densifying(dense=densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
                                         omega_ie_n, block=BLOCK))
+    bounds = part_bounds(key_idx.size - 1, workers)
     _JOB = ((imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n), bounds)
     try:  # each child sees _JOB as it was at its fork
         return Densifying([tasks.submit(f"densification, part {i + 1} of {len(bounds)}", _part, i)
@@ -78,15 +79,3 @@ def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, 
     finally:
         _JOB = None
 
-
-def densify_forked(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray,
-                   gyro_bias: np.ndarray, accel_bias: np.ndarray, gravity_n: np.ndarray, omega_ie_n: np.ndarray,
-                   workers: int) -> DenseTrajectory:
-    """:func:`~.trajectory.densify` (same arguments and result) in up to ``workers`` forked
-    children at once (module docstring); in this process when forking is not possible here
-    (:func:`trackfusion.workers.can_fork`) or the run is too short to be worth it."""
-    if len(part_bounds(key_idx.size - 1, workers)) < 2:  # waited for at once: one part is done here
-        return densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n, block=BLOCK)
-    with ForkedTasks(always_fork=True) as tasks:
-        return start_densify_forked(tasks, imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
-                                    omega_ie_n, workers).result()

@@ -253,10 +253,6 @@ def _blend_rows(a: DenseTrajectory, b: DenseTrajectory, w: np.ndarray, dw: np.nd
                            (1.0 - w[:, None]) * a.vel_n + w[:, None] * b.vel_n + dw[:, None] * dp)
 
 
-def _rows_part(d: DenseTrajectory, m: np.ndarray) -> DenseTrajectory:
-    return d.select(m)
-
-
 def _seam(a: DenseTrajectory, b: DenseTrajectory, join_s: float) -> dict[str, Any]:
     """How far the two solutions are apart over a blend window: largest and at the join."""
     dp = np.linalg.norm(b.pos_n - a.pos_n, axis=1) * 1e3
@@ -274,14 +270,14 @@ def _stitch_rows(parts: list[SegmentResult], joins: np.ndarray, h: float
     pieces, seams = [], []
     for s, p in enumerate(parts):
         own, window = _regions(p.rows.t_s, joins, h, s)
-        pieces.append(_rows_part(p.rows, own))
+        pieces.append(p.rows.select(own))
         if window is None:
             continue
         nxt = parts[s + 1]
         b_window = (nxt.rows.t_s >= joins[s] - h) & (nxt.rows.t_s < joins[s] + h)
         if not np.array_equal(p.row_idx[window], nxt.row_idx[b_window]):
             raise RuntimeError(f"segments {s} and {s + 1} have different rows at the join at {joins[s]:.1f} s")
-        a, b = _rows_part(p.rows, window), _rows_part(nxt.rows, b_window)
+        a, b = p.rows.select(window), nxt.rows.select(b_window)
         w, dw = blend_weight(a.t_s, joins[s], h)
         seams.append(_seam(a, b, joins[s]))
         pieces.append(_blend_rows(a, b, w, dw))
@@ -340,7 +336,7 @@ def _stitch_sigmas(parts: list[SegmentResult], joins: np.ndarray, h: float) -> t
 
 
 def _window_rows(p: SegmentResult, join_s: float, h: float) -> DenseTrajectory:
-    return _rows_part(p.rows, (p.rows.t_s >= join_s - h) & (p.rows.t_s < join_s + h))
+    return p.rows.select((p.rows.t_s >= join_s - h) & (p.rows.t_s < join_s + h))
 
 
 def level_corrections(parts: list[SegmentResult], joins: np.ndarray, h: float) -> list[Callable]:

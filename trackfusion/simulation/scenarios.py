@@ -326,8 +326,8 @@ class SimulationReport:
 
 #: keyframe spacing [s] of the surveys with the wheel-path factor (on every keyframe): with the
 #: rear wheel tied to the front wheel's path, 0.2 s keyframes give the 0.1 s ones' relative
-#: accuracy (open-track-gnss seeds 1-3, 5 m vertical MSE mean 0.042 against 0.040 mm, lateral
-#: 0.032 against 0.032 mm) for about 70 % of the smoothing's CPU time (docs/solver_speed.md)
+#: accuracy (open-track-gnss seeds 1-3, 5 m vertical MSE mean 0.043 against 0.040 mm, lateral
+#: 0.032 against 0.032 mm) for about 73 % of the smoothing's CPU time (docs/solver_speed.md)
 WHEEL_PATH_KEYFRAME_SPACING_S = 0.2
 
 
