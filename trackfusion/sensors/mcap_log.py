@@ -1575,10 +1575,10 @@ class LogSummary:
         total = sum(t.count for t in self.topics)
         lines = [f"{self.path}: {self.size_bytes / 1e6:.2f} MB, {total} messages on {len(self.topics)} topics"
                  f" (written by {self.library or 'unknown'})",
-                 f"{'topic':24s} {'schema':30s} {'clock':7s} {'count':>9s} {'rate Hz':>9s} {'first s':>11s} "
+                 f"{'topic':24s} {'schema':38s} {'clock':7s} {'count':>9s} {'rate Hz':>9s} {'first s':>11s} "
                  f"{'last s':>11s} {'span s':>10s} {'gaps':>5s} {'max gap s':>10s} {'at s':>11s}"]
         for t in self.topics:
-            lines.append(f"{t.topic:24s} {t.schema:30s} {t.clock:7s} {t.count:9d} {t.rate_hz:9.3f} "
+            lines.append(f"{t.topic:24s} {t.schema:38s} {t.clock:7s} {t.count:9d} {t.rate_hz:9.3f} "
                          f"{t.first_s:11.3f} {t.last_s:11.3f} {t.span_s:10.3f} {t.gap_count:5d} "
                          f"{t.largest_gap_s:10.3f} {t.largest_gap_at_s:11.3f}")
         lines.append("metadata records: " + (", ".join(self.metadata) or "none"))
