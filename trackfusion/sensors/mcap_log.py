@@ -845,7 +845,7 @@ class _Scan:
             return
         off = np.asarray(offsets, dtype=np.int64)
         raw = np.frombuffer(data, dtype=np.uint8)
-        hdr = np.ascontiguousarray(raw[off[:, None] + np.arange(31)]).view(_MSG_HEADER).ravel()
+        hdr = sliding_window_view(raw, 31)[off].view(_MSG_HEADER).ravel()
         if np.any(hdr["length"] < 22):
             raise _Corrupt("message record shorter than 22 bytes", base + int(off[np.argmax(hdr["length"] < 22)]))
         channel = hdr["channel"]
