@@ -178,6 +178,31 @@ def test_own_raw_log_round_trip_and_cdr_layout():
     assert rec.tobytes() == bytes(ref)
 
 
+def test_own_log_with_a_cdr_record_of_the_wrong_size_names_it(tmp_path):
+    """Records cut out of a chunk one size at a time, and the chunk holding the odd one, keep
+    their indexes: the error names /imu record 700 of the raw log."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer as McapWriter
+    n = 3000
+    log = SensorLog(imu=ImuData(np.arange(1, n + 1) / 500, np.zeros((n, 3)), np.tile([0, 0, 9.8], (n, 1))))
+    write_log(tmp_path / "ok.mcap", log)
+    with open(tmp_path / "ok.mcap", "rb") as fh, open(tmp_path / "bad.mcap", "wb") as out:
+        reader = make_reader(fh)
+        w = McapWriter(out, chunk_size=64 * 1024)
+        w.start(profile="", library="test")
+        ids = {}
+        for i, (schema, channel, m) in enumerate(reader.iter_messages()):
+            if channel.topic not in ids:
+                ids[channel.topic] = w.register_channel(channel.topic, "cdr", w.register_schema(
+                    schema.name, schema.encoding, schema.data))
+            w.add_message(ids[channel.topic], log_time=m.log_time, publish_time=m.log_time,
+                          data=m.data + bytes(8) if i == 700 else m.data)
+        w.finish()
+    with pytest.raises(SensorDataError, match=r"bad.mcap: /imu record 700: CDR record of 324 bytes, its "
+                                              r"sensor_msgs/msg/Imu layout needs 316"):
+        read_log(tmp_path / "bad.mcap")
+
+
 def test_cdr_decode_names_the_record_of_the_wrong_size():
     msgs = [bytes(STORE.serialize_cdr(_imu_msg(i, [0, 0, 0], [0, 0, 9.8]), "sensor_msgs/msg/Imu")) for i in range(9)]
     for bad, reason in ((msgs[6][:-8], "ends inside field linear_acceleration_covariance"),
