@@ -1604,8 +1604,12 @@ def summarise_times(topic: str, schema: str, t_s: np.ndarray) -> TopicSummary:
 def inspect_log(path: str | Path) -> LogSummary:
     """Check a log fully (as :func:`read_log`, strict) and summarise it per topic. fused.mcap's own
     topics (FUSED_TOPIC_PREFIXES: trajectory, fixes and rails, ``foxglove.*`` schemas) are
-    summarised from their log times, after the sensor topics, without decoding their payloads."""
+    summarised from their log times, after the sensor topics, without decoding their payloads.
+    A ROS 2 bag is summarised by :func:`.ros2.inspect_bag`."""
     p = Path(path)
+    from .ros2 import inspect_bag, is_bag
+    if is_bag(p):
+        return inspect_bag(p)
     others: list[tuple[str, str, np.ndarray]] = []
     log, scan = _read(p, None, allow_truncated=False, others=others)
     entries: list[tuple[str, str, np.ndarray]] = []

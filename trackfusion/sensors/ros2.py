@@ -12,7 +12,9 @@ A bag is an MCAP file (rosbag2's default storage; MCAP header profile ``ros2``),
   ``twist.twist.linear.x`` over time, trapezoidal, from 0 at the first message; ticks 0).
 
 Times are the messages' ``header.stamp`` (the sensor's acquisition time), or the bag's
-receive times when every stamp of a topic is zero. A topic is taken from ``inputs.topics``
+receive times when every stamp of a topic is zero, counted from the whole second at or before
+the first stamp of the topics read (``metadata["ros2_time_origin_ns"]``: ROS stamps are epoch
+times, which float64 seconds would hold to ~0.2 us only). A topic is taken from ``inputs.topics``
 or, when the pipeline names none for a role, found as the only topic of a supported type.
 MCAP bags are read with trackfusion's MCAP reader (chunk CRCs, damage reports: sensors/mcap_log.py);
 ``.db3`` and folders through ``rosbags``. The payloads of a topic are decoded together
@@ -209,12 +211,16 @@ def read_bag(path: str | Path, topics: dict[str, str | None] | None = None, sour
         decoded, damage = read_cdr_topics(mcap_path, dict(roles.values()), allow_truncated)
     else:
         decoded = _read_rosbags(p, roles)
-    log = SensorLog(metadata={"ros2_topics": {role: topic for role, (topic, _) in roles.items()}})
+    stamps = {topic: _times_ns(p, topic, fields, receive_ns) for topic, (receive_ns, fields) in decoded.items()
+              if receive_ns.size}
+    origin_ns = min((int(ns[0]) for ns in stamps.values()), default=0) // 10**9 * 10**9
+    log = SensorLog(metadata={"ros2_topics": {role: topic for role, (topic, _) in roles.items()},
+                              "ros2_time_origin_ns": origin_ns})
     for role, (topic, msgtype) in roles.items():
-        receive_ns, fields = decoded[topic]
-        if receive_ns.size == 0:
+        if topic not in stamps:
             continue
-        t_s = _times_ns(p, topic, fields, receive_ns) / 1e9
+        fields = decoded[topic][1]
+        t_s = (stamps[topic] - origin_ns) / 1e9  # integer ns first: epoch seconds in float64 keep only ~0.2 us
         if role == "imu":
             log.imu = _imu(fields, t_s)
         elif role == "gnss":
@@ -232,3 +238,19 @@ def msgdef(msgtype: str) -> str:
     if msgtype == "trackfusion_msgs/msg/OdometerDistance":
         store.register(get_types_from_msg(cdr.ODOMETER_DISTANCE_MSG, msgtype))
     return store.generate_msgdef(msgtype, ros_version=2)[0]
+
+
+def inspect_bag(path: str | Path):
+    """:func:`~trackfusion.sensors.mcap_log.inspect_log` of a bag: the topics of the roles read
+    (found as by :func:`read_bag`, strictly: no damage allowed), summarised from their times,
+    under the bag's topic names and types."""
+    from .mcap_log import LogSummary, summarise_times
+    p = Path(path)
+    found = bag_topics(p)
+    roles = select_topics(p, found, {}, str(p))
+    log, _ = read_bag(p)
+    data = {"imu": log.imu, "gnss": log.gnss, "odometer": log.odometer}
+    topics = [summarise_times(topic, msgtype, data[role].t_s) for role, (topic, msgtype) in roles.items()
+              if data[role] is not None]
+    size = sum(f.stat().st_size for f in p.iterdir() if f.is_file()) if p.is_dir() else p.stat().st_size
+    return LogSummary(p, size, "ROS 2 bag", topics, sorted(log.metadata))
