@@ -114,7 +114,7 @@ def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
 def test_contract_sections_render_when_their_data_is_present(full_dir):
     text = (full_dir / "report.html").read_text()
     assert _sections(text) == BASE_SECTIONS | CONTRACT_SECTIONS
-    assert "77.25" in text and "4.321" in text  # the exceedance row
+    assert "77.25" in text and "4.32" in text and "id='exc-E1'" in text  # the exceedance row, an anchor
     assert "prism hand-over gap" in text and "gnss_outage" in text and "slope_mm_per_m" in text
     assert text.count("data:image/png;base64,") == 7  # plan, sigmas, accuracy, 3 geometry, time sync
 

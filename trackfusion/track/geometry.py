@@ -409,6 +409,10 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
         "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
         "tolerance_table": tolerances[0] if tolerances else None,
+        "tolerance_checks": [{"name": c.name, "kind": c.kind,
+                              "columns": c.columns() if c.kind == "limit" else [f"{r}_{comp}" for r in RAILS
+                                                                                 for comp in ("vertical", "lateral")],
+                              "levels_mm": dict(c.levels())} for c in checks],
         "exceedances": exceedances,
         "skipped_checks": skipped,
     }
