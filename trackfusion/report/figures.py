@@ -65,20 +65,22 @@ def _every(n: int) -> slice:
 EQUAL_PLAN_MIN_RATIO = 0.05
 
 
-def offset_from_chord_m(e_m: np.ndarray, n_m: np.ndarray) -> np.ndarray:
+def offset_from_chord_m(e_m: np.ndarray, n_m: np.ndarray, chainage_m: np.ndarray) -> np.ndarray:
     """Signed horizontal distance [m] (N,) of each point from the straight line (the chord)
-    through the first and last point, positive to the left of the direction of travel; zero
-    when they coincide."""
-    d = np.array([e_m[-1] - e_m[0], n_m[-1] - n_m[0]], dtype=float)
+    through the points of lowest and highest chainage (so out-and-back surveys share one
+    chord), positive to the left of increasing chainage; zero when the two coincide."""
+    i0, i1 = int(np.nanargmin(chainage_m)), int(np.nanargmax(chainage_m))
+    d = np.array([e_m[i1] - e_m[i0], n_m[i1] - n_m[i0]], dtype=float)
     norm = float(np.hypot(*d))
     if norm == 0.0:
         return np.zeros_like(np.asarray(e_m, dtype=float))
-    return (d[0] * (n_m - n_m[0]) - d[1] * (e_m - e_m[0])) / norm
+    return (d[0] * (n_m - n_m[i0]) - d[1] * (e_m - e_m[i0])) / norm
 
 
 def plan_and_profile(traj: dict[str, np.ndarray]):
     """Plan (north against east [m], equal scales unless the path is nearly straight), the
-    horizontal offset from the start-end chord against chainage (what a straight's plan hides)
+    horizontal offset from the chord of lowest to highest chainage against chainage (what a
+    straight's plan hides)
     and the profile (up against chainage [m])."""
     fig = _figure(11.0, 3.6)
     ax_plan, ax_off, ax_prof = _panels(fig, 1, 3)
@@ -94,15 +96,15 @@ def plan_and_profile(traj: dict[str, np.ndarray]):
         ax_plan.set_aspect("equal", adjustable="datalim")
         ax_plan.set_title("plan (frame n, equal scales)", fontsize=9)
     else:
-        ax_plan.set_title("plan (frame n; scales NOT equal: nearly straight)", fontsize=9)
+        ax_plan.set_title("plan (n; scales NOT equal: nearly straight)", fontsize=8)
     ax_plan.legend(fontsize=7)
     ax_plan.grid(True, alpha=0.3)
-    off_m = offset_from_chord_m(e, n)
+    off_m = offset_from_chord_m(e, n, traj["chainage_m"])
     big = float(np.nanmax(np.abs(off_m))) >= 1.0 if off_m.size else False
     ax_off.plot(traj["chainage_m"][s], off_m[s] * (1.0 if big else 1e3), ".", ms=1.0, color="C0")
     ax_off.set_xlabel("chainage (m)")
-    ax_off.set_ylabel(f"offset from the chord ({'m' if big else 'mm'})")
-    ax_off.set_title("plan: offset from the start-end chord (left +)", fontsize=9)
+    ax_off.set_ylabel(f"offset, left positive ({'m' if big else 'mm'})")
+    ax_off.set_title("offset from the chord, lowest to highest chainage", fontsize=8)
     ax_off.grid(True, alpha=0.3)
     ax_prof.plot(traj["chainage_m"][s], traj["u_m"][s], ".", ms=1.0, color="C0")
     ax_prof.set_xlabel("chainage (m)")
@@ -186,16 +188,16 @@ def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], lev
     axes = np.atleast_1d(_panels(fig, len(names), 1, sharex=True))
     s = _every(chainage_m.size)
     marked: list[tuple] = []
-    legend_done = False
+    legend_of: dict | None = None
     for ax, name in zip(axes, names):
         ax.plot(chainage_m[s], series[name][s], lw=0.7, color="C0")
         for level, limit in (levels_mm.get(name) or {}).items():
             colour = LEVEL_COLOURS.get(level, "C3")
             ax.axhline(limit, color=colour, lw=0.9, ls="--", label=f"{LEVEL_WORDS.get(level, level)} ±{limit:g} mm")
             ax.axhline(-limit, color=colour, lw=0.9, ls="--")
-        if levels_mm.get(name) and not legend_done:
+        if levels_mm.get(name) and levels_mm[name] != legend_of:  # a legend where the levels change
             ax.legend(fontsize=7, loc="upper right", ncol=3)
-            legend_done = True
+            legend_of = levels_mm[name]
         for e in exceedances or []:
             if e.get("column") == name:
                 ax.axvspan(e["from_m"], e["to_m"], color="C3", alpha=0.25, lw=0)

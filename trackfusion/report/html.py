@@ -211,7 +211,7 @@ def summary_section(run: RunFiles) -> str:
         ("sensors", ", ".join(_sensors(config, m)) or "?"),
         ("duration", f"{m.get('duration_s', float(traj['t_s'][-1] - traj['t_s'][0])):.1f} s"),
         ("distance travelled", f"{travelled_m:.1f} m"),
-        ("chainage covered", f"{chainage.min():.2f} m to {chainage.max():.2f} m"),
+        ("chainage covered", f"{num(float(chainage.min()), 2)} m to {num(float(chainage.max()), 2)} m"),
         ("origin of n", m.get("origin")),
         ("IMU samples", m.get("imu_samples")),
         ("keyframes / factors / iterations",
