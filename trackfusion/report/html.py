@@ -92,9 +92,10 @@ def num(v: float, decimals: int) -> str:
 
 
 #: Decimals of a table cell by the unit suffix of its column (what the measurements resolve:
-#: 1 um and 1 ms in mm / m / s columns, 0.1 ms for clock offsets); other floats get 4 digits.
+#: 1 um and 1 ms in mm / m / s columns, 0.1 ms for clock offsets, 0.1 mm for latitude and
+#: longitude, 0.04" for other angles in degrees); other floats get 4 significant digits.
 _DECIMALS = (("offset_s", 4), ("clock (s)", 4), ("_mm", 3), ("(mm)", 3), ("_m", 3), ("(m)", 3), ("_s", 3), ("(s)", 3),
-             ("_ppm", 1), ("_arcsec", 2), ("_deg", 4), ("_mrad", 3))
+             ("_ppm", 1), ("_arcsec", 2), ("lat_deg", 9), ("lon_deg", 9), ("_deg", 5), ("_mrad", 3))
 
 
 def _decimals(column: str | None) -> int | None:
