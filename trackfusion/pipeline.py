@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
 from .fusion import faults, input_checks, preprocess
+from .fusion.imu_noise import estimate_imu_noise
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
@@ -313,6 +314,10 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         info["static_intervals_moving_by_gnss_s"] = [[float(a), float(b)] for a, b in (static[i] for i in moving)]
         static = [iv for i, iv in enumerate(static) if i not in moving]
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
+    imu_noise = estimate_imu_noise(log.imu, static, imu_spec)  # reported beside the datasheet's values
+    if imu_noise is not None:
+        info["noise_estimates"] = {"imu": imu_noise.to_json()}
+        say(imu_noise.summary())
     input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
                                          src)  # issue 8
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
