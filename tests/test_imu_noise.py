@@ -86,3 +86,28 @@ def test_no_static_period_no_estimate():
     imu = _still_imu(spec, seed=0, duration_s=20.0)
     assert estimate_imu_noise(imu, []) is None
     assert estimate_imu_noise(imu, [(1.0, 4.0)]) is None  # shorter than MIN_PERIOD_S
+
+
+def test_run_uses_the_estimate_where_the_datasheet_is_off(tmp_path):
+    """A survey whose gyros are 3x noisier than the pipeline's datasheet says: the run reports the
+    estimate, uses it for the gyros (outside the 1.5x tolerance) and keeps the accelerometers'
+    datasheet value (inside it)."""
+    import yaml
+
+    from surveys import SHORT_OPEN_TRACK
+    from trackfusion.pipeline import load_pipeline, run
+    from trackfusion.simulation.scenarios import simulate_to_dir
+
+    simulate_to_dir("open-track-gnss", tmp_path, seed=7,
+                    overrides=SHORT_OPEN_TRACK + ["imu.gyro_arw_deg_per_sqrt_h=0.003"])
+    path = tmp_path / "pipeline.yaml"
+    cfg = yaml.safe_load(path.read_text())
+    assert cfg["sensors"]["imu"]["gyro_arw_deg_per_sqrt_h"] == 0.003
+    cfg["sensors"]["imu"]["gyro_arw_deg_per_sqrt_h"] = 0.001  # the datasheet, optimistic
+    path.write_text(yaml.safe_dump(cfg))
+    said: list[str] = []
+    est = run(load_pipeline(path), tmp_path / "out", progress=said.append).metrics["noise_estimates"]["imu"]
+    assert est["used"] == ["gyro_arw_deg_per_sqrt_h"]
+    assert est["gyro_arw_deg_per_sqrt_h"]["value"] == pytest.approx(0.003, rel=0.03)
+    assert est["gyro_arw_deg_per_sqrt_h"]["ratio_to_datasheet"] == pytest.approx(3.0, rel=0.03)
+    assert any("sensors.imu.gyro_arw_deg_per_sqrt_h" in m and "uses the estimate" in m for m in said)
