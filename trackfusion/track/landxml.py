@@ -195,11 +195,13 @@ def _point(doc: _Doc, parent: Element, name: str, scale: float, points: dict[str
 
 @dataclass
 class _Element:
-    """One CoordGeom element read: the model element dict, its XML element and its points."""
+    """One CoordGeom element read: the model element dict, its XML element, its points (east,
+    north) [m] and the start heading its points give [rad, from east towards north]."""
 
     model: dict
     el: Element
     points: dict[str, np.ndarray]
+    start_heading_rad: float
 
 
 def _signed(rot: str) -> float:
@@ -208,13 +210,11 @@ def _signed(rot: str) -> float:
 
 def _line(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
     p = {"Start": _point(doc, el, "Start", f, pts), "End": _point(doc, el, "End", f, pts)}
-    chord = float(np.hypot(*(p["End"] - p["Start"])))
-    length = f * _number(doc, el, "length", chord / f)
+    chord = p["End"] - p["Start"]
+    length = f * _number(doc, el, "length", float(np.hypot(*chord)) / f)
     if length <= 0:
         raise doc.error(el, "has zero length")
-    if abs(length - chord) > POINT_TOLERANCE_M:
-        raise doc.error(el, f"length {length:.4f} m differs from its Start-End distance {chord:.4f} m")
-    return _Element({"type": "tangent", "length_m": length}, el, p)
+    return _Element({"type": "tangent", "length_m": length}, el, p, math.atan2(chord[1], chord[0]))
 
 
 def _curve(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
@@ -232,7 +232,9 @@ def _curve(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
     length = f * _number(doc, el, "length", radius * swept / f)
     if length <= 0:
         raise doc.error(el, "has zero length")
-    return _Element({"type": "arc", "length_m": length, "radius_m": sign * radius}, el, p)
+    r_vec = p["Start"] - p["Center"]
+    return _Element({"type": "arc", "length_m": length, "radius_m": sign * radius}, el, p,
+                    math.atan2(r_vec[1], r_vec[0]) + sign * math.pi / 2)
 
 
 def _spiral(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
@@ -254,8 +256,9 @@ def _spiral(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
         a_model = math.sqrt(length / abs(1 / r1 - 1 / r0))
         if abs(a_file - a_model) > 1e-4 * a_model:
             raise doc.error(el, f"constant {a_file:.4f} m disagrees with length and radii (A = {a_model:.4f} m)")
+    tangent = p["PI"] - p["Start"]
     return _Element({"type": "clothoid", "length_m": length,
-                     "start_radius_m": sign * r0, "end_radius_m": sign * r1}, el, p)
+                     "start_radius_m": sign * r0, "end_radius_m": sign * r1}, el, p, math.atan2(tangent[1], tangent[0]))
 
 
 _READERS = {"Line": _line, "Curve": _curve, "Spiral": _spiral}
@@ -288,7 +291,8 @@ def _tangent_intersection(p0: np.ndarray, h0: np.ndarray, p1: np.ndarray, h1: np
 
 
 def _model_points(elements: list[_Element]) -> dict[str, np.ndarray]:
-    """Start, End, Center and PI of every element of the model started at (0, 0) heading east."""
+    """Start, End, Center and PI (M, 2) of every element and its start and end heading (M,) [rad]
+    of the model started at (0, 0) heading east."""
     cfg = AlignmentConfig.model_validate({"horizontal": {"elements": [e.model for e in elements]}})
     design = DesignAlignment(cfg)
     s0 = design.s_start
@@ -297,7 +301,45 @@ def _model_points(elements: list[_Element]) -> dict[str, np.ndarray]:
     radius = np.array([e.model.get("radius_m", 0.0) for e in elements])  # signed, positive left
     normal = np.column_stack([-np.sin(a.heading_rad), np.cos(a.heading_rad)])
     return {"Start": a.pos_n[:, :2], "End": b.pos_n[:, :2], "Center": a.pos_n[:, :2] + radius[:, None] * normal,
-            "PI": _tangent_intersection(a.pos_n[:, :2], a.heading_rad, b.pos_n[:, :2], b.heading_rad)}
+            "PI": _tangent_intersection(a.pos_n[:, :2], a.heading_rad, b.pos_n[:, :2], b.heading_rad),
+            "start_heading": a.heading_rad, "end_heading": b.heading_rad}
+
+
+def _rotate(xy: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Points (M, 2) each rotated by its angle (M,) [rad]."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.column_stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]])
+
+
+def _check_elements(doc: _Doc, elements: list[_Element], model: dict[str, np.ndarray]) -> None:
+    """Each element on its own (its End, Center, PI where its Start, start tangent, length and
+    radii put them), then each joint (no gap, no kink): the first element at fault is named."""
+    start = np.array([e.points["Start"] for e in elements])
+    heading = np.array([e.start_heading_rad for e in elements])
+    for k in ("End", "Center", "PI"):
+        has = np.array([k in e.points and bool(np.all(np.isfinite(model[k][i]))) for i, e in enumerate(elements)])
+        if not has.any():
+            continue
+        local = _rotate(model[k][has] - model["Start"][has], -model["start_heading"][has])
+        misfit = np.hypot(*(np.array([e.points[k] for e, h in zip(elements, has) if h])
+                            - start[has] - _rotate(local, heading[has])).T)
+        bad = np.flatnonzero(misfit > POINT_TOLERANCE_M)
+        if bad.size:
+            i, j = int(np.flatnonzero(has)[bad[0]]), bad[0]
+            raise doc.error(elements[i].el, f"its {k} point is {misfit[j]:.4f} m from where its Start, start tangent, "
+                            f"length and radii put it (tolerance {POINT_TOLERANCE_M} m)")
+    end = np.array([e.points["End"] for e in elements])
+    gap = np.hypot(*(start[1:] - end[:-1]).T)
+    turned = model["end_heading"] - model["start_heading"]
+    kink = np.angle(np.exp(1j * (heading[1:] - heading[:-1] - turned[:-1])))
+    lengths = np.array([e.model["length_m"] for e in elements])
+    offset = np.abs(kink) * np.minimum(lengths[1:], lengths[:-1])  # sideways error the kink makes
+    for i in range(1, len(elements)):
+        if gap[i - 1] > POINT_TOLERANCE_M:
+            raise doc.error(elements[i].el, f"its Start is {gap[i - 1]:.4f} m from the previous element's End (a gap)")
+        if offset[i - 1] > POINT_TOLERANCE_M:
+            raise doc.error(elements[i].el, f"its start tangent turns {1e3 * kink[i - 1]:.3f} mrad from the previous "
+                            "element's end tangent (a kink)")
 
 
 def _rigid_fit(model_xy: np.ndarray, file_xy: np.ndarray) -> tuple[np.ndarray, float]:
@@ -313,6 +355,7 @@ def _rigid_fit(model_xy: np.ndarray, file_xy: np.ndarray) -> tuple[np.ndarray, f
 def _horizontal(doc: _Doc, elements: list[_Element]) -> dict:
     """The ``horizontal`` section: elements, and the start pose fitted to the file's points."""
     model = _model_points(elements)
+    _check_elements(doc, elements, model)
     pairs = [(i, k) for i, e in enumerate(elements) for k in e.points if np.all(np.isfinite(model[k][i]))]
     mxy = np.array([model[k][i] for i, k in pairs])
     fxy = np.array([elements[i].points[k] for i, k in pairs])
@@ -323,8 +366,8 @@ def _horizontal(doc: _Doc, elements: list[_Element]) -> dict:
     if misfit[worst] > POINT_TOLERANCE_M:
         i, k = pairs[worst]
         raise doc.error(elements[i].el, f"its {k} point is {misfit[worst]:.4f} m off the alignment rebuilt from "
-                        f"the elements' lengths, radii and rot (tolerance {POINT_TOLERANCE_M} m): a gap, a kink "
-                        "or a wrong rot/radius/length")
+                        f"the elements' lengths and radii (tolerance {POINT_TOLERANCE_M} m; the elements' small "
+                        "errors add up)")
     if np.hypot(*t) > MAX_DISTANCE_FROM_ORIGIN_M:
         raise doc.error(elements[0].el, f"starts {np.hypot(*t) / 1000:.0f} km from the origin of n: the design looks "
                         "like projected-grid coordinates; trackfusion takes them in the survey's local frame n "
