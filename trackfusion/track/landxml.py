@@ -439,8 +439,9 @@ def _vertical(doc: _Doc, alignment: Element, f: float, sta0: float) -> dict:
     return {"pvis": pvis}
 
 
-def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float) -> dict:
-    """``cant_stations`` and ``cant_base_m`` from the ``Cant`` element (empty without one)."""
+def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float, length_m: float) -> dict:
+    """``cant_stations`` and ``cant_base_m`` from the ``Cant`` element (empty without one); the
+    stations must lie on the alignment (``length_m`` long)."""
     cant = _one(doc, alignment, "Cant", required=False)
     if cant is None:
         return {}
@@ -466,6 +467,8 @@ def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float) -
         s = f * (_number(doc, st, "station") - sta0)
         if stations and s <= stations[-1]["chainage_m"]:
             raise doc.error(st, "station does not follow the previous CantStation")
+        if not -POINT_TOLERANCE_M <= s <= length_m + POINT_TOLERANCE_M:
+            raise doc.error(st, f"station {s / f + sta0:g} lies off the alignment ({sta0:g} to {sta0 + length_m / f:g})")
         stations.append({"chainage_m": s, "cant_mm": 1000.0 * applied, "raised_rail": raised})
     if not stations:
         raise doc.error(cant, "holds no CantStation")
@@ -493,13 +496,9 @@ def read_landxml(path: str | Path) -> AlignmentConfig:
     sta0 = _number(doc, al, "staStart", 0.0)
     elements = _coord_geom(doc, al, f)
     _check_stations(doc, al, elements, f, sta0)
+    length_m = sum(e.model["length_m"] for e in elements)
     data = {"horizontal": _horizontal(doc, elements), "vertical": _vertical(doc, al, f, sta0),
-            **_cant(doc, al, f, f_cant, sta0)}
-    total = sum(e.model["length_m"] for e in elements)
-    for st in data.get("cant_stations", []):
-        if not -POINT_TOLERANCE_M <= st["chainage_m"] <= total + POINT_TOLERANCE_M:
-            raise ConfigError(f"{doc.path}: CantStation at chainage {st['chainage_m']:.3f} m lies outside the "
-                              f"alignment [0, {total:.3f}] m")
+            **_cant(doc, al, f, f_cant, sta0, length_m)}
     try:
         return AlignmentConfig.model_validate(data)
     except ValidationError as exc:
