@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hst
 from scipy.special import fresnel
 
 from trackfusion.cli import main
@@ -328,3 +330,94 @@ def test_yaml_clothoid_end_radii_and_cant_stations():
     with pytest.raises(ConfigError, match="start_radius_m"):
         DesignAlignment.from_dict({"horizontal": {"elements": [
             {"type": "tangent", "length_m": 10.0, "start_radius_m": 100.0}]}})
+
+
+# --- round trip: random designs written as LandXML (points from the model) read back the same ---------
+
+def _as_landxml(design: DesignAlignment, path: Path, sta0: float) -> Path:
+    """``design`` written as LandXML: element points from the model itself, printed exactly; cant
+    at the element joints. A test helper: it checks the reader's parsing (N E order, rot, radii,
+    stations, units) and fit over many geometries, not the geometry (the closed-form tests do)."""
+    num = lambda x: repr(float(x))  # noqa: E731  (shortest exact text)
+    ne = lambda p: f"{num(p[1])} {num(p[0])}"  # noqa: E731
+    rad = lambda k: "INF" if k == 0 else num(1 / abs(k))  # noqa: E731
+    parts, joints = [], []
+    for e, s0 in zip(design.config.horizontal.elements, design.s_start):
+        st = design.evaluate([s0, min(s0 + e.length_m, design.length_m)])
+        p0, p1, h0, h1 = st.pos_n[0, :2], st.pos_n[1, :2], st.heading_rad[0], st.heading_rad[1]
+        k0, k1 = st.curvature_h_1pm
+        rot = "ccw" if (k0 + k1) > 0 else "cw"
+        head = f'staStart="{num(sta0 + s0)}" length="{num(e.length_m)}"'
+        if e.type == "tangent":
+            parts.append(f"<Line {head}><Start>{ne(p0)}</Start><End>{ne(p1)}</End></Line>")
+            continue
+        d0, d1 = np.array([np.cos(h0), np.sin(h0)]), np.array([np.cos(h1), np.sin(h1)])
+        t = ((p1 - p0)[0] * d1[1] - (p1 - p0)[1] * d1[0]) / (d0[0] * d1[1] - d0[1] * d1[0])
+        pi = p0 + t * d0
+        if e.type == "arc":
+            centre = p0 + e.radius_m * _left(h0)
+            parts.append(f'<Curve {head} radius="{num(abs(e.radius_m))}" rot="{rot}"><Start>{ne(p0)}</Start>'
+                         f"<Center>{ne(centre)}</Center><End>{ne(p1)}</End><PI>{ne(pi)}</PI></Curve>")
+        else:
+            parts.append(f'<Spiral {head} radiusStart="{rad(k0)}" radiusEnd="{rad(k1)}" rot="{rot}" '
+                         f'spiType="clothoid"><Start>{ne(p0)}</Start><PI>{ne(pi)}</PI><End>{ne(p1)}</End></Spiral>')
+        joints += [s0, s0 + e.length_m]
+    joints = sorted(set(joints))
+    cant = design.evaluate(joints).cant_m if joints else []
+    cant_xml = "".join(f'<CantStation station="{num(sta0 + s)}" appliedCant="{num(1000 * abs(c))}" '
+                       f'curvature="{"cw" if c > 0 else "ccw"}"/>' for s, c in zip(joints, cant))
+    pvis = "".join(f'<ParaCurve length="{num(p.curve_length_m)}">{num(sta0 + p.chainage_m)} {num(p.u_m)}</ParaCurve>'
+                   if p.curve_length_m else f"<PVI>{num(sta0 + p.chainage_m)} {num(p.u_m)}</PVI>"
+                   for p in design.config.vertical.pvis)
+    body = (f'<Alignment name="R" staStart="{num(sta0)}"><CoordGeom>{"".join(parts)}</CoordGeom>'
+            f"<Profile><ProfAlign>{pvis}</ProfAlign></Profile>"
+            + (f'<Cant gauge="1.435">{cant_xml}</Cant>' if cant_xml else "") + "</Alignment>")
+    return _write(path, body)
+
+
+@hst.composite
+def _designs(draw):
+    """Random tangent - clothoid - arc - clothoid runs (curving either way, with cant), random pose
+    and vertical profile (grades within 5 %)."""
+    L = hst.floats(5.0, 300.0)
+    elements = [{"type": "tangent", "length_m": draw(L)}]
+    for _ in range(draw(hst.integers(1, 3))):
+        r = draw(hst.floats(150.0, 5000.0)) * draw(hst.sampled_from([-1.0, 1.0]))
+        elements += [{"type": "clothoid", "length_m": draw(hst.floats(10.0, 150.0))},
+                     {"type": "arc", "length_m": draw(L), "radius_m": r, "cant_mm": draw(hst.floats(0.0, 160.0))},
+                     {"type": "clothoid", "length_m": draw(hst.floats(10.0, 150.0))},
+                     {"type": "tangent", "length_m": draw(L)}]
+    total = sum(e["length_m"] for e in elements)
+    s_pvi = np.sort(draw(hst.lists(hst.floats(0.05, 0.95), min_size=0, max_size=3, unique=True))) * total
+    knots = np.concatenate([[0.0], s_pvi, [total]])
+    grades = draw(hst.lists(hst.floats(-0.05, 0.05), min_size=len(knots) - 1, max_size=len(knots) - 1))
+    u = draw(hst.floats(-50.0, 500.0)) + np.concatenate([[0.0], np.cumsum(np.diff(knots) * np.array(grades))])
+    pvis = [{"chainage_m": float(s), "u_m": float(z)} for s, z in zip(knots, u)]
+    for k in range(1, len(pvis) - 1):
+        room = min(knots[k] - knots[k - 1], knots[k + 1] - knots[k])
+        if room > 1.0:
+            pvis[k]["curve_length_m"] = draw(hst.sampled_from([0.0, 1.0, 1.8 * room]) | hst.floats(1.0, 1.8 * room))
+    return {"horizontal": {"start_e_m": draw(hst.floats(-20_000.0, 20_000.0)),
+                           "start_n_m": draw(hst.floats(-20_000.0, 20_000.0)),
+                           "heading_deg": draw(hst.floats(-180.0, 180.0)), "elements": elements},
+            "vertical": {"pvis": pvis}}
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cfg=_designs(), sta0=hst.floats(0.0, 1e5))
+def test_random_designs_round_trip_through_landxml(tmp_path, cfg, sta0):
+    original = DesignAlignment.from_dict(cfg)
+    back = load_design(_as_landxml(original, tmp_path / "round.xml", sta0))
+    s = np.linspace(0.0, original.length_m, 2001)
+    a, b = original.evaluate(s), back.evaluate(s)
+    assert back.length_m == pytest.approx(original.length_m, rel=1e-12)
+    assert np.abs(a.pos_n - b.pos_n).max() < 5e-10  # measured over 200 examples: 1.1e-10 m (at up to 22 km)
+    assert np.abs(np.angle(np.exp(1j * (a.heading_rad - b.heading_rad)))).max() < 1e-13  # the same modulo 2 pi
+    # stations (staStart + chainage, up to 1e5 m) carry the chainages to ~1e-11 m: grades to ~1e-12
+    assert np.abs(a.slope_rad - b.slope_rad).max() < 1e-11
+    for name, tol in (("cant_m", 5e-13), ("curvature_h_1pm", 1e-15)):
+        assert np.abs(getattr(a, name) - getattr(b, name)).max() < tol, name
+    # vertical curvature jumps at the ends of each vertical curve, which the stations move by ~1e-11 m
+    ends = [p.chainage_m + h * p.curve_length_m / 2 for p in original.config.vertical.pvis for h in (-1, 1)]
+    away = np.min(np.abs(s[:, None] - np.array(ends)[None, :]), axis=1) > 1e-6
+    assert np.abs(a.curvature_v_1pm - b.curvature_v_1pm)[away].max() < 1e-11
