@@ -214,6 +214,7 @@ BAD = [
     (lambda t: t.replace('linearUnit="meter"', 'linearUnit="furlong"'), "Metric: linearUnit='furlong'"),
     (lambda t: t.replace('spiType="clothoid">', 'spiType="cubic">', 1), "Spiral: spiType='cubic' is not supported"),
     (lambda t: t.replace('radius="300" rot="cw"', 'radius="300" rot="left"'), "Curve: rot='left'"),
+    (lambda t: t.replace('radiusStart="INF"', 'radiusStart="0.0"'), "Spiral: radiusStart and radiusEnd must be"),
     (lambda t: t.replace('radius="300" rot="cw"', 'radius="300" rot="ccw"'), "Curve: its End point is 177.3121 m"),
     (lambda t: t.replace("1962.3247339099 1325.2354806113", "1962.3247339099 1325.2454806113"),
      "Curve: its Center point is"),
@@ -262,6 +263,17 @@ def test_bad_files_give_one_line_errors(tmp_path, change, message):
     text = str(exc.value)
     assert message in text and "\n" not in text
     assert text.startswith(f"{path}:")
+
+
+def test_spirals_without_pi_and_negative_inf_radii_are_read(tmp_path):
+    """The schema requires a Spiral's PI; some writers leave it out (the start tangent is then the
+    previous element's end tangent) or write -INF: the same model."""
+    text = re.sub(r"<PI>[^<]*</PI>\s*<End>2137", "<End>2137", CURVE_XML.read_text())
+    text = re.sub(r"<PI>[^<]*</PI>\s*<End>2234", "<End>2234", text).replace('radiusStart="INF"', 'radiusStart="-INF"')
+    assert text.count("<PI>") == 1
+    s = np.linspace(0.0, 410.0, 411)
+    a, b = load_design(CURVE_XML).evaluate(s), load_design(_write_text(tmp_path / "nopi.xml", text)).evaluate(s)
+    assert np.abs(a.pos_n - b.pos_n).max() < 5e-11
 
 
 def test_error_names_the_line_of_the_element(tmp_path):

@@ -241,10 +241,14 @@ def _spiral(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
     spi = el.get("spiType")
     if spi != "clothoid":
         raise doc.error(el, f"spiType={spi!r} is not supported (clothoid only)")
-    p = {k: _point(doc, el, k, f, pts) for k in ("Start", "PI", "End")}
+    p = {k: _point(doc, el, k, f, pts) for k in ("Start", "End")}
+    pi = _point(doc, el, "PI", f, pts, required=False)  # required by the schema, left out by some writers
+    if pi is not None:
+        p["PI"] = pi
     sign = _signed(_choice(doc, el, "rot", ("cw", "ccw")))
     length = f * _number(doc, el, "length")
-    r0, r1 = (f * _number(doc, el, a, inf=True) for a in ("radiusStart", "radiusEnd"))
+    r0, r1 = (abs(f * _number(doc, el, a, inf=True)) if el.get(a, "").strip().endswith("INF")
+              else f * _number(doc, el, a) for a in ("radiusStart", "radiusEnd"))
     if length <= 0:
         raise doc.error(el, "has zero length")
     if r0 <= 0 or r1 <= 0:
@@ -256,9 +260,9 @@ def _spiral(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
         a_model = math.sqrt(length / abs(1 / r1 - 1 / r0))
         if abs(a_file - a_model) > 1e-4 * a_model:
             raise doc.error(el, f"constant {a_file:.4f} m disagrees with length and radii (A = {a_model:.4f} m)")
-    tangent = p["PI"] - p["Start"]
-    return _Element({"type": "clothoid", "length_m": length,
-                     "start_radius_m": sign * r0, "end_radius_m": sign * r1}, el, p, math.atan2(tangent[1], tangent[0]))
+    tangent = p["PI"] - p["Start"] if pi is not None else None  # no PI: the previous element's end tangent
+    return _Element({"type": "clothoid", "length_m": length, "start_radius_m": sign * r0, "end_radius_m": sign * r1},
+                    el, p, math.nan if tangent is None else math.atan2(tangent[1], tangent[0]))
 
 
 _READERS = {"Line": _line, "Curve": _curve, "Spiral": _spiral}
@@ -316,6 +320,11 @@ def _check_elements(doc: _Doc, elements: list[_Element], model: dict[str, np.nda
     radii put them), then each joint (no gap, no kink): the first element at fault is named."""
     start = np.array([e.points["Start"] for e in elements])
     heading = np.array([e.start_heading_rad for e in elements])
+    turned = model["end_heading"] - model["start_heading"]
+    if np.isnan(heading[0]):
+        raise doc.error(elements[0].el, "the first element needs a PI (its start tangent)")
+    for i in np.flatnonzero(np.isnan(heading)):  # a spiral without PI starts on the previous end tangent
+        heading[i] = heading[i - 1] + turned[i - 1]
     for k in ("End", "Center", "PI"):
         has = np.array([k in e.points and bool(np.all(np.isfinite(model[k][i]))) for i, e in enumerate(elements)])
         if not has.any():
@@ -330,7 +339,6 @@ def _check_elements(doc: _Doc, elements: list[_Element], model: dict[str, np.nda
                             f"length and radii put it (tolerance {POINT_TOLERANCE_M} m)")
     end = np.array([e.points["End"] for e in elements])
     gap = np.hypot(*(start[1:] - end[:-1]).T)
-    turned = model["end_heading"] - model["start_heading"]
     kink = np.angle(np.exp(1j * (heading[1:] - heading[:-1] - turned[:-1])))
     lengths = np.array([e.model["length_m"] for e in elements])
     offset = np.abs(kink) * np.minimum(lengths[1:], lengths[:-1])  # sideways error the kink makes
