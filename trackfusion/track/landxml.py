@@ -21,10 +21,13 @@ Conventions of LandXML taken care of here:
   stations and elevations; cant values are millimetres (metric) or inches (imperial), as
   the schema says; ``Cant@gauge`` is in the linear unit.
 
-The model is rebuilt from the elements' lengths and radii (the points alone over-determine it);
-its start point and heading are the rigid 2-D fit of the model's element points (Start, End,
-Center, PI) to the file's, and every file point must lie within :data:`POINT_TOLERANCE_M` of
-the model's: a wrong ``rot``, radius or length, a gap or a kink is refused, not smoothed over.
+The model is rebuilt from the elements' lengths and radii (the points over-determine it). Each
+element's End, Center and PI must lie within :data:`POINT_TOLERANCE_M` of where its own Start,
+start tangent, length and radii put them, each Start on the previous End (no gap) and each
+start tangent on the previous end tangent (no kink): the first element at fault is named. The
+model's start point and heading are then the rigid 2-D fit of its element points to the file's,
+and every file point must lie within the same tolerance of the fitted model (small errors that
+add up). A wrong ``rot``, radius or length is refused, not smoothed over.
 
 Parsed with the standard library's expat (namespace-aware, any LandXML namespace) rather than
 ``xml.etree`` alone, because ElementTree's C parser does not report element line numbers.
@@ -468,7 +471,7 @@ def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float, l
         applied = f_cant * _number(doc, st, "appliedCant")
         if applied < 0:
             raise doc.error(st, "appliedCant must not be negative (the raised rail follows curvature and adverse)")
-        curve = _choice(doc, st, "curvature", ("cw", "ccw"))
+        curve = _choice(doc, st, "curvature", ("cw", "ccw"), None if applied else "cw")  # no side without cant
         adverse = _choice(doc, st, "adverse", ("true", "false", "1", "0"), "false") in ("true", "1")
         # the outer rail of a right-hand (cw) curve is the left one; adverse cant raises the inner rail
         raised = "left" if (curve == "cw") != adverse else "right"
