@@ -20,6 +20,7 @@ from scipy.special import fresnel
 
 from trackfusion.cli import main
 from trackfusion.errors import ConfigError
+from trackfusion.simulation.config import available_scenarios, load_scenario
 from trackfusion.track.design import DesignAlignment
 from trackfusion.track.geometry import load_design
 from trackfusion.track.landxml import read_landxml
@@ -433,3 +434,14 @@ def test_random_designs_round_trip_through_landxml(tmp_path, cfg, sta0):
     away = np.min(np.abs(s[:, None] - np.array(ends)[None, :]), axis=1) > 1e-6
     assert np.abs(a.slope_rad - b.slope_rad)[away].max() < 1e-11
     assert np.abs(a.curvature_v_1pm - b.curvature_v_1pm)[away].max() < 1e-11
+
+
+@pytest.mark.parametrize("name", available_scenarios())
+def test_every_scenario_design_round_trips_through_landxml(tmp_path, name):
+    original = DesignAlignment.from_dict(load_scenario(name).alignment)
+    back = load_design(_as_landxml(original, tmp_path / f"{name}.xml", 0.0))
+    s = np.linspace(0.0, original.length_m, 4001)
+    a, b = original.evaluate(s), back.evaluate(s)
+    assert np.abs(a.pos_n - b.pos_n).max() < 5e-10
+    assert np.abs(a.cant_m - b.cant_m).max() < 5e-13
+    assert np.abs(a.R_nt - b.R_nt).max() < 1e-12

@@ -438,8 +438,8 @@ def _vertical(doc: _Doc, alignment: Element, f: float, sta0: float) -> dict:
             raise doc.error(child, f"station {s / f + sta0:g} does not follow the previous one")
         pvis.append(pvi)
         els.append(child)
-    if len(pvis) < 2:
-        raise doc.error(prof[0], "needs at least two PVIs")
+    if not pvis:
+        raise doc.error(prof[0], "holds no PVI")
     for k in (0, len(pvis) - 1):
         if pvis[k].get("curve_length_m"):
             raise doc.error(els[k], "the first and last vertical points take no vertical curve")
