@@ -85,7 +85,12 @@ def _expected(s):
         xy, th, k = p4 + (s - 310) * _dir(th4), th4, 0.0
     g1, g2, L = 0.01, -0.01, 80.0
     x = s - 160.0
-    z = 50 + g1 * s if s <= 160 else 49.9 - g2 * (410 - s) if s >= 240 else 52 + g1 * (x - L / 2) + (g2 - g1) / (2 * L) * x**2
+    if s <= 160:
+        z = 50 + g1 * s
+    elif s >= 240:
+        z = 49.9 - g2 * (410 - s)
+    else:
+        z = 52 + g1 * (x - L / 2) + (g2 - g1) / (2 * L) * x**2
     cant = float(np.interp(s, [100, 160, 250, 310], [0, 0.09, 0.09, 0]))  # outer rail of a right curve: left, +
     return xy, th, k, z, cant
 

@@ -479,7 +479,8 @@ def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float, l
         if stations and s <= stations[-1]["chainage_m"]:
             raise doc.error(st, "station does not follow the previous CantStation")
         if not -POINT_TOLERANCE_M <= s <= length_m + POINT_TOLERANCE_M:
-            raise doc.error(st, f"station {s / f + sta0:g} lies off the alignment ({sta0:g} to {sta0 + length_m / f:g})")
+            raise doc.error(st, f"station {s / f + sta0:g} lies off the alignment "
+                            f"({sta0:g} to {sta0 + length_m / f:g})")
         stations.append({"chainage_m": s, "cant_mm": 1000.0 * applied, "raised_rail": raised})
     if not stations:
         raise doc.error(cant, "holds no CantStation")
