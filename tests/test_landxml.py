@@ -8,6 +8,7 @@ written in trackfusion's YAML. Bad files must give one-line errors naming file, 
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -20,7 +21,9 @@ from scipy.special import fresnel
 
 from trackfusion.cli import main
 from trackfusion.errors import ConfigError
+from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.config import available_scenarios, load_scenario
+from trackfusion.simulation.scenarios import simulate_to_dir
 from trackfusion.track.design import DesignAlignment
 from trackfusion.track.geometry import load_design
 from trackfusion.track.landxml import read_landxml
@@ -450,3 +453,30 @@ def test_every_scenario_design_round_trips_through_landxml(tmp_path, name):
     assert np.abs(a.pos_n - b.pos_n).max() < 5e-10
     assert np.abs(a.cant_m - b.cant_m).max() < 5e-13
     assert np.abs(a.R_nt - b.R_nt).max() < 1e-12
+
+
+@pytest.mark.slow
+def test_a_run_with_the_landxml_design_gives_the_yaml_designs_geometry(tmp_path):
+    """``trackfusion run`` on an ideal simulated survey, once with the scenario's design in YAML,
+    once as LandXML (inputs.design: design.xml): the same geometry.csv."""
+    short = ["motion.passes=1", "motion.start_m=40", "motion.segments=[{hold_s: 30}, "
+             "{move_to_m: 100, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 10}]"]
+    simulate_to_dir("open-track-gnss", tmp_path, seed=3, ideal=True, overrides=short)
+    alignment = json.loads((tmp_path / "truth.json").read_text())["config"]["alignment"]
+    (tmp_path / "design.yaml").write_text(yaml.safe_dump({"alignment": alignment}))
+    _as_landxml(DesignAlignment.from_dict(alignment), tmp_path / "design.xml", 2500.0)
+    tables = []
+    for design in ("design.yaml", "design.xml"):
+        p = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
+        p["inputs"]["design"] = design
+        (tmp_path / "p.yaml").write_text(yaml.safe_dump(p))
+        out = tmp_path / f"out_{design.split('.')[1]}"
+        assert main(["run", str(tmp_path / "p.yaml"), "--out", str(out)]) == 0
+        assert json.loads((out / "metrics.json").read_text())["geometry"]["chainage"] == "design (projection)"
+        tables.append(read_csv_table(out / "geometry.csv"))
+    a, b = tables
+    assert list(a) == list(b) and a["chainage_m"].size > 200
+    worst = {col: float(np.nanmax(np.abs(a[col] - b[col]))) for col in a}  # measured: all 0 as written
+    for col in a:
+        assert np.array_equal(np.isnan(a[col]), np.isnan(b[col])), col
+        assert worst[col] < 1e-6, col
