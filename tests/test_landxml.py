@@ -3,7 +3,8 @@
 Oracles: Fresnel integrals for the clothoids (scipy.special.fresnel), circle and parabola
 formulas for the arc and the vertical curve, the hand-written file
 ``tests/data/landxml_curve.xml`` (its geometry in its header comment) and the same design
-written in trackfusion's YAML. Bad files must give one-line errors naming file, line and element.
+written in trackfusion's YAML; round trips of random and scenario designs written as LandXML;
+a run with either design. Bad files must give one-line errors naming file, line and element.
 """
 
 from __future__ import annotations

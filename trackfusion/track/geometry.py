@@ -24,7 +24,6 @@ from ..evaluation.repeatability import repeatability
 from . import irregularities as irr
 from .chainage import curvature_matched_chainage, project_onto_design, regrid
 from .design import DesignAlignment
-from .landxml import read_landxml
 from .shortwave import deformation_index, detect_defects, merge_defects, spatial_spectrum
 from .traces import RailTraces, TrolleyGeometry, rail_traces
 from .versines import chord_indicator, chord_offsets
@@ -402,6 +401,7 @@ def load_design(path: Path) -> DesignAlignment:
     """A design alignment, by the file's suffix: ``.xml`` / ``.landxml`` a LandXML 1.2 file
     (:func:`.landxml.read_landxml`), ``.yaml`` / ``.yml`` a YAML file holding an ``alignment:``
     section (a scenario YAML works) or the alignment mapping itself."""
+    from .landxml import read_landxml
     suffix = path.suffix.lower()
     if suffix in (".xml", ".landxml"):
         return DesignAlignment(read_landxml(path))
