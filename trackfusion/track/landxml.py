@@ -339,7 +339,8 @@ def _check_elements(doc: _Doc, elements: list[_Element], model: dict[str, np.nda
         if bad.size:
             i, j = int(np.flatnonzero(has)[bad[0]]), bad[0]
             raise doc.error(elements[i].el, f"its {k} point is {misfit[j]:.4f} m from where its Start, start tangent, "
-                            f"length and radii put it (tolerance {POINT_TOLERANCE_M} m)")
+                            f"length and radii put it (tolerance {POINT_TOLERANCE_M} m): a wrong rot, radius or "
+                            "length, or points not written 'northing easting'?")
     end = np.array([e.points["End"] for e in elements])
     gap = np.hypot(*(start[1:] - end[:-1]).T)
     kink = np.angle(np.exp(1j * (heading[1:] - heading[:-1] - turned[:-1])))
