@@ -195,10 +195,11 @@ def test_units_scale_lengths_stations_and_elevations(tmp_path):
     assert st.pos_n[:, 2] == pytest.approx([1.0, 2.0, 3.0])
     assert st.cant_m == pytest.approx([0.0, -0.05, -0.1])  # cant in mm; a left curve raises the right rail
     assert d.config.cant_base_m == pytest.approx(1.5)
-    ft = mm.replace("mm", "ft").replace("1435", "4.708")
+    ft = mm.replace("mm", "ft").replace("1435", "4.708").replace('appliedCant="100"', 'appliedCant="4"')
     d = load_design(_write(tmp_path / "ft.xml", ft, units='<Imperial linearUnit="USSurveyFoot"/>'))
     assert d.length_m == pytest.approx(100000 * 1200 / 3937)
     assert d.evaluate([0.0]).pos_n[0, 1] == pytest.approx(20000 * 1200 / 3937)
+    assert d.evaluate([d.length_m]).cant_m[0] == pytest.approx(-4 * 0.0254)  # inches
 
 
 def test_adverse_cant_raises_the_inner_rail(tmp_path):
@@ -221,10 +222,13 @@ def _swap_ne(text):
 BAD = [
     (lambda t: t[: len(t) // 2], "not well-formed XML"),
     (lambda t: t.replace("<LandXML ", "<Land ").replace("</LandXML>", "</Land>"), "not a LandXML file"),
+    (lambda t: t.replace('encoding="UTF-8"', 'encoding="no-such"'), ":1: not readable XML (unknown encoding"),
     (lambda t: t.replace('linearUnit="meter"', 'linearUnit="furlong"'), "Metric: linearUnit='furlong'"),
     (lambda t: t.replace('spiType="clothoid">', 'spiType="cubic">', 1), "Spiral: spiType='cubic' is not supported"),
     (lambda t: t.replace('radius="300" rot="cw"', 'radius="300" rot="left"'), "Curve: rot='left'"),
-    (lambda t: t.replace('radiusStart="INF"', 'radiusStart="0.0"'), "Spiral: radiusStart and radiusEnd must be"),
+    (lambda t: t.replace('radiusStart="INF"', 'radiusStart="0.0"'), "Spiral: radius 0 m must be at least 1 m"),
+    (lambda t: t.replace("<PVI>1410 49.9</PVI>", "<PVI>1410 1e308</PVI>"), "PVI: station 1410 or elevation 1e+308"),
+    (lambda t: t.replace("<PVI>1410 49.9</PVI>", "<PVI>1410 500</PVI>"), "PVI: the grade from the previous PVI"),
     (lambda t: t.replace('radius="300" rot="cw"', 'radius="300" rot="ccw"'), "Curve: its End point is 177.3121 m"),
     (lambda t: t.replace("1962.3247339099 1325.2354806113", "1962.3247339099 1325.2454806113"),
      "Curve: its Center point is"),
@@ -481,3 +485,26 @@ def test_a_run_with_the_landxml_design_gives_the_yaml_designs_geometry(tmp_path)
     for col in a:
         assert np.array_equal(np.isnan(a[col]), np.isnan(b[col])), col
         assert worst[col] < 1e-6, col
+
+
+_TOKENS = [m.span() for m in re.finditer(r'"[^"]*"|>[^<]+<', CURVE_XML.read_text())]
+_ODD = ['""', '"-1"', '"0"', '"INF"', '"-INF"', '"NaN"', '"1e308"', '"1e-300"', '"abc"', '"cw"', '"ccw"',
+        '"clothoid"', ">1 2 3 4<", "><", ">nan nan<", ">1e308 1e308<", ">0 0<", ">1 1e308<"]
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(changes=hst.lists(hst.tuples(hst.sampled_from(_TOKENS), hst.sampled_from(_ODD)), min_size=1, max_size=3,
+                         unique_by=lambda c: c[0]))
+def test_mangled_files_give_a_model_or_one_line(tmp_path, changes):
+    """Any attribute value or text of the hand-written file replaced by an odd one: either a
+    design or a one-line ConfigError, never another exception."""
+    text = CURVE_XML.read_text()
+    for (a, b), odd in sorted(changes, reverse=True):
+        text = text[:a] + (odd if odd[0] == text[a] else text[a] + odd[1:-1] + text[b - 1]) + text[b:]
+    path = _write_text(tmp_path / "mangled.xml", text)
+    try:
+        design = load_design(path)
+    except ConfigError as exc:
+        assert "\n" not in str(exc) and str(exc).startswith(str(path))
+    else:
+        assert np.all(np.isfinite(design.evaluate(np.linspace(0, design.length_m, 50)).pos_n))

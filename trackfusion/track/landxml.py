@@ -57,6 +57,9 @@ MAX_DISTANCE_FROM_ORIGIN_M = 100_000.0
 RAIL_HEAD_M = 0.065
 """Cant base = ``Cant@gauge`` + this (1.5 m for the 1.435 m standard gauge)."""
 
+_MAX_COORD_M, _MAX_LENGTH_M, _MIN_RADIUS_M, _MAX_ELEVATION_M, _MAX_GRADE, _MAX_CANT_M = 1e7, 1e6, 1.0, 1e5, 1.0, 0.5
+"""Bounds beyond which a value is a malformed file, not a track (and would overflow the model)."""
+
 _LINEAR_M = {"millimeter": 1e-3, "centimeter": 1e-2, "meter": 1.0, "kilometer": 1e3,
              "foot": 0.3048, "USSurveyFoot": 1200.0 / 3937.0, "inch": 0.0254, "mile": 1609.344}
 _CANT_M = {"Metric": 1e-3, "Imperial": 0.0254}  # CantStation values: mm or inches
@@ -104,6 +107,8 @@ def _parse(path: Path) -> _Doc:
         parser.Parse(data, True)
     except expat.ExpatError as exc:
         raise ConfigError(f"{path}:{exc.lineno}: not well-formed XML ({expat.ErrorString(exc.code)})") from None
+    except LookupError as exc:  # the XML declaration names an encoding Python does not know
+        raise ConfigError(f"{path}:1: not readable XML ({exc})") from None
     root = builder.close()
     if _local(root.tag) != "LandXML":
         raise ConfigError(f"{path}:1: not a LandXML file (root element {_local(root.tag)!r})")
@@ -193,7 +198,22 @@ def _point(doc: _Doc, parent: Element, name: str, scale: float, points: dict[str
         raise doc.error(el, f"point {text!r} is not 'northing easting [elevation]'") from None
     if len(values) not in (2, 3) or not all(map(math.isfinite, values)):
         raise doc.error(el, f"point {text!r} is not 'northing easting [elevation]'")
+    if max(abs(v) for v in values) * scale > _MAX_COORD_M:
+        raise doc.error(el, f"point {text!r} lies beyond {_MAX_COORD_M / 1000:g} km")
     return scale * np.array([values[1], values[0]])
+
+
+def _check_length(doc: _Doc, el: Element, length_m: float) -> float:
+    if not 0 < length_m <= _MAX_LENGTH_M:
+        raise doc.error(el, f"length {length_m:g} m must be positive and at most {_MAX_LENGTH_M:g} m")
+    return length_m
+
+
+def _check_radius(doc: _Doc, el: Element, radius_m: float) -> float:
+    if not radius_m >= _MIN_RADIUS_M:
+        raise doc.error(el, f"radius {radius_m:g} m must be at least {_MIN_RADIUS_M:g} m (INF: straight; the side "
+                        "is rot)")
+    return radius_m
 
 
 @dataclass
@@ -214,9 +234,7 @@ def _signed(rot: str) -> float:
 def _line(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
     p = {"Start": _point(doc, el, "Start", f, pts), "End": _point(doc, el, "End", f, pts)}
     chord = p["End"] - p["Start"]
-    length = f * _number(doc, el, "length", float(np.hypot(*chord)) / f)
-    if length <= 0:
-        raise doc.error(el, "has zero length")
+    length = _check_length(doc, el, f * _number(doc, el, "length", float(np.hypot(*chord)) / f))
     return _Element({"type": "tangent", "length_m": length}, el, p, math.atan2(chord[1], chord[0]))
 
 
@@ -227,14 +245,10 @@ def _curve(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
         p["PI"] = pi
     sign = _signed(_choice(doc, el, "rot", ("cw", "ccw")))
     r_points = float(np.hypot(*(p["Start"] - p["Center"])))
-    radius = f * _number(doc, el, "radius", r_points / f)
-    if radius <= 0:
-        raise doc.error(el, f"radius {radius:g} m must be positive (the side is rot)")
+    radius = _check_radius(doc, el, f * _number(doc, el, "radius", r_points / f))
     a0, a1 = (math.atan2(*(p[k] - p["Center"])[::-1]) for k in ("Start", "End"))
     swept = ((a1 - a0) * sign) % (2 * math.pi)  # angle turned in the rot sense
-    length = f * _number(doc, el, "length", radius * swept / f)
-    if length <= 0:
-        raise doc.error(el, "has zero length")
+    length = _check_length(doc, el, f * _number(doc, el, "length", radius * swept / f))
     r_vec = p["Start"] - p["Center"]
     return _Element({"type": "arc", "length_m": length, "radius_m": sign * radius}, el, p,
                     math.atan2(r_vec[1], r_vec[0]) + sign * math.pi / 2)
@@ -249,13 +263,9 @@ def _spiral(doc: _Doc, el: Element, f: float, pts: dict) -> _Element:
     if pi is not None:
         p["PI"] = pi
     sign = _signed(_choice(doc, el, "rot", ("cw", "ccw")))
-    length = f * _number(doc, el, "length")
-    r0, r1 = (abs(f * _number(doc, el, a, inf=True)) if el.get(a, "").strip().endswith("INF")
-              else f * _number(doc, el, a) for a in ("radiusStart", "radiusEnd"))
-    if length <= 0:
-        raise doc.error(el, "has zero length")
-    if r0 <= 0 or r1 <= 0:
-        raise doc.error(el, "radiusStart and radiusEnd must be positive (INF: straight; the side is rot)")
+    length = _check_length(doc, el, f * _number(doc, el, "length"))
+    r0, r1 = (math.inf if el.get(a, "").strip() in ("INF", "-INF") else _check_radius(doc, el, f * _number(doc, el, a))
+              for a in ("radiusStart", "radiusEnd"))
     if r0 == r1:
         raise doc.error(el, "radiusStart equals radiusEnd: not a spiral")
     if el.get("constant") is not None:  # clothoid parameter A, A^2 = L / |k1 - k0|
@@ -411,8 +421,9 @@ def _station_value(doc: _Doc, el: Element, f: float, sta0: float) -> tuple[float
         sta, z = (float(v) for v in (el.text or "").split())
     except ValueError:
         raise doc.error(el, f"text {(el.text or '').strip()!r} is not 'station elevation'") from None
-    if not (math.isfinite(sta) and math.isfinite(z)):
-        raise doc.error(el, "station and elevation must be finite")
+    if not (math.isfinite(sta) and math.isfinite(z)) or abs(f * z) > _MAX_ELEVATION_M \
+            or abs(f * (sta - sta0)) > _MAX_COORD_M:
+        raise doc.error(el, f"station {sta:g} or elevation {z:g} is not plausible")
     return f * (sta - sta0), f * z
 
 
@@ -432,11 +443,11 @@ def _vertical(doc: _Doc, alignment: Element, f: float, sta0: float) -> dict:
         s, z = _station_value(doc, child, f, sta0)
         pvi = {"chainage_m": s, "u_m": z}
         if name == "ParaCurve":
-            pvi["curve_length_m"] = f * _number(doc, child, "length")
-            if pvi["curve_length_m"] < 0:
-                raise doc.error(child, "length must not be negative")
+            pvi["curve_length_m"] = _check_length(doc, child, f * _number(doc, child, "length"))
         if els and s <= pvis[-1]["chainage_m"]:
             raise doc.error(child, f"station {s / f + sta0:g} does not follow the previous one")
+        if els and abs(z - pvis[-1]["u_m"]) > _MAX_GRADE * (s - pvis[-1]["chainage_m"]):
+            raise doc.error(child, f"the grade from the previous PVI exceeds {100 * _MAX_GRADE:g} %")
         pvis.append(pvi)
         els.append(child)
     if not pvis:
@@ -470,8 +481,9 @@ def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float, l
     stations = []
     for st in _children(cant, "CantStation"):
         applied = f_cant * _number(doc, st, "appliedCant")
-        if applied < 0:
-            raise doc.error(st, "appliedCant must not be negative (the raised rail follows curvature and adverse)")
+        if not 0 <= applied <= _MAX_CANT_M:
+            raise doc.error(st, f"appliedCant {applied * 1e3:g} mm must lie in 0-{_MAX_CANT_M * 1e3:g} mm (the raised "
+                            "rail follows curvature and adverse)")
         curve = _choice(doc, st, "curvature", ("cw", "ccw"), None if applied else "cw")  # no side without cant
         adverse = _choice(doc, st, "adverse", ("true", "false", "1", "0"), "false") in ("true", "1")
         # the outer rail of a right-hand (cw) curve is the left one; adverse cant raises the inner rail
