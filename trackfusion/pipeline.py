@@ -63,7 +63,7 @@ class InputsConfig(_Strict):
     log: str
     reference: str | None = None
     allow_truncated: bool = False
-    design: str | None = None  # design alignment YAML (an ``alignment:`` section), for geometry
+    design: str | None = None  # design alignment: YAML (``alignment:``) or LandXML 1.2 (.xml), for geometry
 
 
 class OriginConfig(_Strict):

@@ -488,8 +488,16 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
 
 
 def load_design(path: Path) -> DesignAlignment:
-    """A design alignment from a YAML file holding an ``alignment:`` section (a scenario YAML
-    works) or the alignment mapping itself."""
+    """A design alignment, by the file's suffix: ``.xml`` / ``.landxml`` a LandXML 1.2 file
+    (:func:`.landxml.read_landxml`), ``.yaml`` / ``.yml`` a YAML file holding an ``alignment:``
+    section (a scenario YAML works) or the alignment mapping itself."""
+    from .landxml import read_landxml
+    suffix = path.suffix.lower()
+    if suffix in (".xml", ".landxml"):
+        return DesignAlignment(read_landxml(path))
+    if suffix not in (".yaml", ".yml"):
+        raise ConfigError(f"{path}: unknown design file type {suffix or '(no suffix)'!r} "
+                          "(.xml / .landxml: LandXML 1.2; .yaml / .yml: YAML)")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
