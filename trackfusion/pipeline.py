@@ -353,15 +353,22 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     return problem, info
 
 
+#: an IMU noise estimate below this fraction of the datasheet's is no sensor's but a noise-free log's
+NOISE_FREE_RATIO = 1e-3
+
+
 def _imu_spec_from_data(spec: ImuSpec, est, tolerance: float) -> tuple[ImuSpec, list[str]]:
     """``spec`` with the white-noise densities the static data estimate (``est``, an
     :class:`~trackfusion.fusion.imu_noise.ImuNoiseEstimate`) where they differ from the
-    datasheet by more than the factor ``tolerance``; returns it and the keys replaced."""
+    datasheet by more than the factor ``tolerance`` (not below :data:`NOISE_FREE_RATIO` of it);
+    returns it and the keys replaced."""
     replaced = {}
     for key in ("gyro_arw_deg_per_sqrt_h", "accel_vrw_mps_per_sqrt_h"):
         term = est.terms()[key]
         ratio = term.ratio()
-        if term.value is not None and (ratio is None or not 1.0 / tolerance <= ratio <= tolerance):
+        if term.value is None or (ratio is not None and ratio < NOISE_FREE_RATIO):
+            continue  # no noise in the static data (a noise-free, simulated log): the datasheet stays
+        if ratio is None or not 1.0 / tolerance <= ratio <= tolerance:
             replaced[key] = term.value
     return (spec.model_copy(update=replaced) if replaced else spec), sorted(replaced)
 
