@@ -40,37 +40,38 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class TrolleyVehicle(_Strict):
-    """A rigid survey trolley: wheelbase of the reference-rail wheels, IMU origin in ``v`` and the
-    mounting angles of ``b`` in ``v`` (yaw, pitch, roll), the encoder wheel."""
+class _Mounted(_Strict):
+    """Where the IMU sits: its origin in ``v`` [m] and the mounting angles of ``b`` in ``v``
+    (yaw, pitch, roll) [deg]."""
+
+    lever_arm_imu_v_m: Vec3
+    mounting_ypr_deg: Vec3 = (0.0, 0.0, 0.0)
+
+
+class TrolleyVehicle(_Mounted):
+    """A rigid survey trolley: wheelbase of the reference-rail wheels, the encoder wheel."""
 
     kind: Literal["trolley"] = "trolley"
     wheelbase_m: float = Field(gt=0)
     reference_rail: Literal["left", "right"] = "left"
-    lever_arm_imu_v_m: Vec3
-    mounting_ypr_deg: Vec3 = (0.0, 0.0, 0.0)
     odometer_wheel: Literal["rear", "front"] = "rear"
 
 
-class RailVehicle(_Strict):
+class RailVehicle(_Mounted):
     """A rail vehicle: the distance of the two axles (or bogie centres) whose midpoint on the
-    reference rail is ``v``'s origin, IMU origin in ``v``, mounting, the odometer's axle."""
+    reference rail is ``v``'s origin; the odometer's axle."""
 
     kind: Literal["rail-vehicle"]
     axle_distance_m: float = Field(gt=0)
     reference_rail: Literal["left", "right"] = "left"
-    lever_arm_imu_v_m: Vec3
-    mounting_ypr_deg: Vec3 = (0.0, 0.0, 0.0)
     odometer_axle: Literal["rear", "front"] = "rear"
 
 
-class RoadVehicle(_Strict):
-    """A road vehicle: IMU origin in ``v`` (``v``'s origin: centre of the rear axle), mounting,
-    and where the speed is measured in ``v`` (default: the rear axle centre)."""
+class RoadVehicle(_Mounted):
+    """A road vehicle (``v``'s origin: centre of the rear axle) and where its speed is measured
+    in ``v`` [m] (default: the rear axle centre)."""
 
     kind: Literal["road-vehicle"]
-    lever_arm_imu_v_m: Vec3
-    mounting_ypr_deg: Vec3 = (0.0, 0.0, 0.0)
     odometer_lever_arm_v_m: Vec3 | None = None
 
 
