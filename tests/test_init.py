@@ -67,14 +67,14 @@ def test_init_without_records_writes_zeros_to_fill_in(survey, capsys):
     d = survey
     out = d / "bare.yaml"
     code, cap = _init(capsys, d / "bare.mcap", "--out", out)
-    assert code == 2 and "vehicle.wheelbase_m" in cap.err.strip().splitlines()[-1] and not out.exists()
-    code, cap = _init(capsys, d / "bare.mcap", "--out", out, "--set", "vehicle.wheelbase_m=1.2")
     assert code == 0, cap.err
     assert "fill in" in cap.out and "sensors.gnss.lever_arm_b_m" in cap.out
     text = out.read_text()
-    assert "# FILL IN before trusting the results: vehicle.lever_arm_imu_v_m, sensors.gnss.lever_arm_b_m" in text
+    assert ("# FILL IN before trusting the results: vehicle.wheelbase_m, vehicle.lever_arm_imu_v_m, "
+            "sensors.gnss.lever_arm_b_m") in text
     assert "FILL IN: antenna phase centre" in text
     cfg = load_pipeline(out).config
+    assert cfg.vehicle.wheelbase_m == 1.0 and not cfg.factors.wheel_path.enabled  # a placeholder: no wheel path
     assert cfg.sensors.gnss.lever_arm_b_m == (0.0, 0.0, 0.0) and cfg.vehicle.lever_arm_imu_v_m == (0.0, 0.0, 0.0)
     assert cfg.sensors.imu.gyro_bias_deg_per_h == IMU_GRADES["navigation"].gyro_bias_deg_per_h  # no record: navigation
     assert cfg.origin.lat_deg == pytest.approx(42.86)  # the survey metadata record's
@@ -84,6 +84,7 @@ def test_init_without_records_writes_zeros_to_fill_in(survey, capsys):
                       "--set", "factors.odometer.sigma_mm=0.1")
     assert code == 0, cap.err
     cfg = load_pipeline(out).config
+    assert cfg.vehicle.wheelbase_m == 1.2 and cfg.factors.wheel_path.enabled  # measured: the wheel path on
     assert cfg.sensors.gnss.lever_arm_b_m == (0.1, 0.3, 0.2) and cfg.factors.odometer.sigma_mm == 0.1
     assert cfg.factors.odometer.enabled and cfg.sensors.imu.gyro_arw_deg_per_sqrt_h == 0.03
     assert "sensors.gnss.lever_arm_b_m" not in out.read_text().split("FILL IN before")[-1].splitlines()[0]

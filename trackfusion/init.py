@@ -9,7 +9,8 @@ the lever arms and vehicle geometry of the log's ``lever_arms`` metadata record 
 says to fill it in: lever arms not in the log are zero (the GNSS antenna's never is: measure
 it), the IMU's noise is the named grade's datasheet figures (``--imu-grade``; without it the
 log's own ``sensors`` record, else ``navigation``). A trolley's wheelbase and a rail vehicle's
-axle distance are not guessed: without a record, ``--set`` must give them.
+axle distance neither in the log nor given are a round placeholder to fill in, and the wheel
+path, which needs the exact wheelbase, stays off.
 
 Factors are switched on for the sensors present and supported by the vehicle's kind
 (trackfusion/vehicles.py): the wheel path on a trolley with an odometer and GNSS (as the
@@ -37,6 +38,10 @@ from .vehicles import VEHICLE_KINDS
 #: default (docs/pipeline.md, "Choosing the NHC sigma"); a rail vehicle's wheelsets play and hunt
 #: by centimetres at a hertz or two; a car's side slip and suspension: KF-GINS's 0.1 m/s
 NHC_SIGMA_MM_PER_S = {"trolley": 1.0, "rail-vehicle": 50.0, "road-vehicle": 100.0}
+#: wheelbase [m] written, to fill in, when neither the log nor ``--set`` gives it: a round figure
+#: of the class (survey trolleys about 1 m, bogies about 2.5 m), so that the file runs; the odometer
+#: hardly depends on it (a lever arm along the direction it measures), the wheel path does (off)
+PLACEHOLDER_WHEELBASE_M = {"trolley": 1.0, "rail-vehicle": 2.5}
 
 
 @dataclass
@@ -126,8 +131,9 @@ class _Draft:
             self.fill_in.append(key)
 
 
-def _vehicle(d: _Draft, kind: str, arms: dict) -> None:
-    """The vehicle section of ``kind`` from the log's ``lever_arms`` record ``arms`` (or zeros)."""
+def _vehicle(d: _Draft, kind: str, arms: dict, given: set[str]) -> None:
+    """The vehicle section of ``kind`` from the log's ``lever_arms`` record ``arms`` (or zeros and
+    placeholders to fill in); ``given``: the keys ``--set`` gives."""
     d.put("vehicle.kind", kind, "what carries the IMU (docs/pipeline.md, vehicle): trolley, rail-vehicle, road-vehicle")
     from_log = "from the log's lever_arms metadata record"
     if kind in ("trolley", "rail-vehicle"):
@@ -136,9 +142,11 @@ def _vehicle(d: _Draft, kind: str, arms: dict) -> None:
                 else "the two axles of the IMU's bogie, or the two bogie centres (IMU on the body) [m]")
         if "wheelbase_m" in arms:
             d.put(f"vehicle.{key}", float(arms["wheelbase_m"]), f"{what}; {from_log}")
+        elif f"vehicle.{key}" in given:
+            d.put(f"vehicle.{key}", None, what)  # the --set value comes in after the draft
         else:
-            d.data.setdefault("vehicle", {})[key] = None  # must come from --set (checked after it)
-            d.notes[f"vehicle.{key}"] = what
+            d.put(f"vehicle.{key}", PLACEHOLDER_WHEELBASE_M[kind],
+                  f"FILL IN: {what}; a placeholder (the wheel path stays off until it is measured)", True)
         d.put("vehicle.reference_rail", "left")
     origin = {"trolley": "v's origin: midway between the reference-rail wheel contacts",
               "rail-vehicle": "v's origin: midway between those axles, on the reference rail",
@@ -178,7 +186,8 @@ def _sensors_and_factors(d: _Draft, log, kind: str, topics: dict, grade: str | N
         d.put("sensors.odometer", {"clock_offset_s": 0.0}, f"/odometer: {_describe(log.odometer.t_s)}; "
               "clock_offset_s: its clock minus the IMU's")
     d.put("factors.odometer", "odometer" in has)
-    wheel_path = kind == "trolley" and {"odometer", "gnss"} <= has
+    # the wheel path needs the exact wheelbase: not on a placeholder
+    wheel_path = kind == "trolley" and {"odometer", "gnss"} <= has and "vehicle.wheelbase_m" not in d.fill_in
     d.put("factors.wheel_path", {"enabled": True, "keyframe_step": 1} if wheel_path else False,
           "the rear wheel runs where the front one ran (docs/wheel_path.md)" if wheel_path
           else "the wheel path: a trolley's, with an odometer and GNSS (docs/wheel_path.md)")
@@ -216,8 +225,10 @@ def _sensors_and_factors(d: _Draft, log, kind: str, topics: dict, grade: str | N
     return unused
 
 
-def draft_pipeline(log, log_path: Path, out: Path, kind: str = "trolley", imu_grade: str | None = None) -> _Draft:
-    """The pipeline for ``log`` (read from ``log_path``) to be written at ``out``."""
+def draft_pipeline(log, log_path: Path, out: Path, kind: str = "trolley", imu_grade: str | None = None,
+                   given: set[str] = frozenset()) -> _Draft:
+    """The pipeline for ``log`` (read from ``log_path``) to be written at ``out``; ``given``: the
+    dotted keys ``--set`` will give."""
     if kind not in VEHICLE_KINDS:
         raise ConfigError(f"--vehicle: unknown kind {kind!r} (known: {', '.join(VEHICLE_KINDS)})")
     if imu_grade is not None and imu_grade not in IMU_GRADES:
@@ -239,7 +250,7 @@ def draft_pipeline(log, log_path: Path, out: Path, kind: str = "trolley", imu_gr
         d.put("origin", {"lat_deg": float(log.gnss.lat_deg[i]), "lon_deg": float(log.gnss.lon_deg[i]),
                          "h_m": float(log.gnss.h_m[i])},
               f"origin of n (ENU): the first {quality} fix, at t = {float(log.gnss.t_s[i]):.3f} s")
-    _vehicle(d, kind, arms)
+    _vehicle(d, kind, arms, given)
     d.unused = _sensors_and_factors(d, log, kind, topics, imu_grade, arms)
     d.topics = {t: _describe(data.t_s) for t, (_, data) in topics.items()}
     return d
@@ -299,9 +310,6 @@ def _validate(data: dict, out: Path, set_keys: list[str]) -> None:
             raise ConfigError(f"--set {unknown}: not a pipeline key (docs/pipeline.md)") from None
     except ValueError:
         pass  # parse_pipeline names it below
-    for key in ("wheelbase_m", "axle_distance_m"):
-        if key in data.get("vehicle", {}) and data["vehicle"][key] is None:
-            raise ConfigError(f"{out}: vehicle.{key}: not in the log's metadata; give it: --set vehicle.{key}=<m>")
     parse_pipeline(data, str(out), out.resolve().parent)
 
 
@@ -350,7 +358,7 @@ def init_pipeline(log_path: str | os.PathLike, out: str | os.PathLike, kind: str
         raise ConfigError(f"{log_path}: log not found")
     say(f"reading {log_path}")
     log = read_log(log_path)
-    d = draft_pipeline(log, log_path, out, kind, imu_grade)
+    d = draft_pipeline(log, log_path, out, kind, imu_grade, {k for k, _ in parsed})
     for key, value in parsed:
         apply_set(d.data, key, value)
         d.notes[key] = (d.notes.get(key, "").replace("FILL IN: ", "") + "; " if d.notes.get(key) else "") + "set by --set"
