@@ -147,3 +147,17 @@ def test_topic_used_without_its_sensors_section(survey):
     assert info["sensors_unused"] == [{"topic": "/gnss", "reason": "factors.gnss is off"}]
     lines = P.sensor_summary_lines({**info, "sensors_defaulted": ["x"]})
     assert lines == ["  default: x", "  sensors in the log not used: /gnss (factors.gnss is off)"]
+
+
+def test_odometer_speed_check_follows_the_kind():
+    """40 m/s is no trolley (distance_m in the wrong unit?) but a rail vehicle or a car."""
+    from trackfusion.errors import SensorDataError
+    from trackfusion.fusion.input_checks import check_odometer_units
+    from trackfusion.sensors.types import OdometerData
+    from trackfusion.vehicles import MAX_SPEED_MPS
+    t = np.arange(0.0, 10.0, 0.01)
+    odo = OdometerData(t, 40.0 * t, np.zeros(t.size, dtype=np.int64))
+    with pytest.raises(SensorDataError, match=r"faster than a trolley \(30 m/s\)"):
+        check_odometer_units(odo, "log.mcap", max_speed_mps=MAX_SPEED_MPS["trolley"], vehicle="trolley")
+    for kind in ("rail-vehicle", "road-vehicle"):
+        check_odometer_units(odo, "log.mcap", max_speed_mps=MAX_SPEED_MPS[kind], vehicle=kind)

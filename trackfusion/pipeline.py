@@ -48,7 +48,7 @@ from .sensors.spill import release_free_memory
 from .sensor_use import decide_sensor_use, summary_lines as sensor_summary_lines
 from .sensors.types import InclinometerData, OdometerData, SensorLog
 from .track.geometry import GeometryConfig
-from .vehicles import TrolleyVehicle, VehicleConfig, error_location, frame_of, vehicle_section
+from .vehicles import MAX_SPEED_MPS, TrolleyVehicle, VehicleConfig, error_location, frame_of, vehicle_section
 
 Vec3 = tuple[float, float, float]
 
@@ -308,7 +308,8 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     clocks = used.clocks
     input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use_gnss else None,
                            odometer=log.odometer if use_odometer else None,
-                           inclinometer=log.inclinometer if use_inclinometer else None)
+                           inclinometer=log.inclinometer if use_inclinometer else None,
+                           max_speed_mps=MAX_SPEED_MPS[cfg.vehicle.kind], vehicle=cfg.vehicle.kind)
     gnss = GnssFixes.from_data(log.gnss, origin, clocks["gnss"].lever_arm_b_m, clocks["gnss"].clock_offset_s) \
         if use_gnss else None
     info["clock_jumps"] = []

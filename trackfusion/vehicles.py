@@ -124,6 +124,10 @@ def frame_of(vehicle: TrolleyVehicle | RailVehicle | RoadVehicle) -> TrolleyFram
                                     odometer_point_v=point)
 
 
+#: fastest plausible speed of each kind [m/s] (the odometer's units check, fusion/input_checks.py):
+#: a pushed or motorised trolley; a rail vehicle up to 360 km/h; a car up to 250 km/h
+MAX_SPEED_MPS = {"trolley": 30.0, "rail-vehicle": 100.0, "road-vehicle": 70.0}
+
 #: what each kind cannot use: pipeline key -> (kinds that support it, why the others do not)
 KIND_SUPPORT = {
     "factors.wheel_path": (("trolley",), "it needs a rigid trolley whose rear reference-rail wheel runs where "
