@@ -306,6 +306,10 @@ def test_bag_of_the_survey_runs_to_the_same_trajectory(survey, tmp_path):
     rms = _rms_mm(read_csv_table(tmp_path / "out" / "trajectory.csv"), original)
     print(f"bag run against the original run: {rms:.3g} mm RMS")
     assert rms < 1e-9  # (the target is 0.2 mm; the bag holds the log's values bit for bit, so the run must agree)
+    # init on the bag writes a pipeline that runs (its topics found as run finds them)
+    assert main(["init", str(tmp_path / "bag"), "--out", str(tmp_path / "init.yaml"), "--imu-grade", "navigation"]) == 0
+    assert yaml.safe_load((tmp_path / "init.yaml").read_text())["inputs"]["log"] == "bag"
+    assert main(["run", str(tmp_path / "init.yaml"), "--out", str(tmp_path / "out_init")]) == 0
 
 
 def test_frd_increments_imported_with_axes_frd_run_to_the_same_trajectory(survey, tmp_path, capsys):
