@@ -243,3 +243,15 @@ def _tiny_problem():
     return FusionProblem(ImuData(t, np.zeros((3, 3)), np.zeros((3, 3))), ImuNoise.from_spec(IMU_GRADES["navigation"]),
                          0.01, Origin(45.0, 7.0, 0.0), TrolleyFrame.from_angles((0, 0, 0), (0, 0, 0), 1.2), [],
                          gnss=GnssFixes(t, np.zeros((3, 3)), np.zeros((3, 3, 3)), np.full(3, 4)))
+
+
+def test_default_is_the_one_batch_solve_on_any_number_of_cpus(runs, monkeypatch):
+    """With ``smoother.workers`` unset the run is the one-batch run, byte for byte, whatever the
+    CPUs: the same log gives the same trajectory on any computer."""
+    d, batch, _ = runs
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})  # a 4-CPU machine
+    data = _config(d, 1)
+    del data["smoother"]["workers"]
+    res = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / "out-default")
+    assert "segments" not in res.metrics
+    assert (res.out_dir / "trajectory.csv").read_bytes() == (batch.out_dir / "trajectory.csv").read_bytes()

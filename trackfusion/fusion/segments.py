@@ -52,7 +52,7 @@ import numpy as np
 
 from .. import geodesy
 from ..rotations import so3_exp, so3_log
-from ..workers import can_fork, run_forked, usable_cpus
+from ..workers import can_fork, run_forked
 from .chunks import sub_problem
 from .problem import FusionProblem
 from .settings import SmootherSettings
@@ -76,10 +76,10 @@ def independent_segments(problem: FusionProblem) -> bool:
 
 
 def worker_count(settings: SmootherSettings) -> int:
-    """``smoother.workers``, or without it 2 on a machine with two CPUs or more, else 1."""
-    if settings.workers is not None:
-        return settings.workers
-    return 2 if usable_cpus() >= 2 else 1
+    """``smoother.workers``, or without it 1: one batch. The default never depends on the
+    machine, so the same log gives the same trajectory on any computer (segments are an
+    approximation of the batch, docs/solver_speed.md)."""
+    return settings.workers if settings.workers is not None else 1
 
 
 @dataclass(frozen=True)

@@ -206,8 +206,8 @@ class SmootherSettings(_Strict):
 
     ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
     segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
-    forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
-    with two CPUs or more, else 1 (one batch). A run that stays in one batch (total stations) is
+    forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 1 (one batch) on
+    any machine, so that the default trajectory never depends on the CPU count. A run that stays in one batch (total stations) is
     densified in that many forked processes instead (fusion/densify_forked.py: the same rows).
     ``slow_priors`` (off): each segment's IMU biases and odometer scale take priors from coarse
     solves of the data before and after it (fusion/slow_pass.py), as one batch ties them to the
