@@ -214,6 +214,9 @@ class SmootherSettings(_Strict):
     rest of the run; off by default: on the demo survey (no static period at its end) they made
     the 5 m vertical MSE 0.131 mm against 0.022 mm without them (docs/solver_speed.md).
 
+    ``part_s``: each Gauss-Newton step is solved in time parts of this duration
+    (fusion/partitioned.py: the one-batch answer, to rounding); null: in one piece.
+
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
     from the rate at which the steps shrink, is below this (fusion/convergence.py); 0: off.
     """
@@ -226,6 +229,7 @@ class SmootherSettings(_Strict):
     overlap_s: float = Field(120.0, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
     slow_priors: bool = False
+    part_s: float | None = Field(None, gt=0)
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":

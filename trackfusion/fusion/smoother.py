@@ -29,6 +29,7 @@ from .convergence import StepHistory
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
 from .slow_states import EndCovariances, SlowPrior, replaces_start, slow_end_covariances, slow_prior_factors
+from .partitioned import Partition, PartitionedSolver, cut_times
 from .wheel_path import wheel_path_builder
 from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
@@ -552,12 +553,15 @@ class _Solved:
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None) -> _Solved:
+                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None,
+                 partition: "Partition | None" = None) -> _Solved:
     """Gauss-Newton with step halving (see :class:`_Solved`). Stops when the cost falls by less
     than ``rtol`` (relative) or the predicted remaining correction is below ``step_tol_m``
     (fusion/convergence.py). ``previous``: the solve of the same graph that ended at ``values``
     (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
-    and when its steps have converged already its tree is returned without a new iteration."""
+    and when its steps have converged already its tree is returned without a new iteration.
+    ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
+    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`)."""
     state = previous.state if previous is not None else _State.of(values, with_scale)
     cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state)
     it = 0
@@ -565,11 +569,15 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     history = previous.history.copy() if previous is not None else StepHistory()
     if history.converged(step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
+    solver = PartitionedSolver(partition) if partition is not None else None
     for it in range(1, max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state)
-        ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-        tree = _eliminate(gfg, ordering)
-        delta = tree.optimize()
+        if solver is not None:
+            delta, tree = solver.solve(gfg)
+        else:
+            ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+            tree = _eliminate(gfg, ordering)
+            delta = tree.optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
@@ -875,6 +883,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     gating = gnss is not None or prisms is not None
     rtol = problem.smoother.relative_tolerance
     step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
+    partition = _partition(problem, t_key, bias_seg, seg)
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
@@ -886,7 +895,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         # a gating round need not converge to the last digit before its gate: the tolerance is
         # tightened once the gate rejects nothing more (below)
         sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol)
+                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol,
+                           partition=partition)
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
@@ -905,7 +915,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             newly_rejected |= bool(np.any(bad))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
-                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol)
+                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol,
+                                   partition)
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
@@ -939,6 +950,17 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_cov=_station_covariance(prisms, sol.tree),
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
                           hand_over=hand_over, end_cov=end_cov)
+
+
+def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None
+               ) -> Partition | None:
+    """The time parts of ``smoother.part_s`` (fusion/partitioned.py), or None: one batch."""
+    part_s = problem.smoother.part_s
+    if part_s is None:
+        return None
+    cuts = cut_times(float(t_key[0]), float(t_key[-1]), part_s)
+    gnss = problem.gnss if problem.factors.gnss.enabled else None
+    return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None)
 
 
 def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray

@@ -1,0 +1,131 @@
+"""The exact partitioned Gauss-Newton step (fusion/partitioned.py, ``smoother.part_s``) gives the
+one-batch solve: on a short noisy open-track survey (215 s, GNSS, odometer, wheel path) with
+1, 2 and 3 parts, with a part boundary inside a static period and inside a GNSS outage, and on
+a short bridge survey with two total stations with the boundary on the stations' hand-over.
+Measured: positions within 2e-12 m, attitudes within 1e-12 rad, marginal sigmas within 4e-6
+(relative); the targets are 1 um, 1e-8 rad and 1 %."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from gtsam.symbol_shorthand import B, V, X
+
+from trackfusion.fusion import partitioned as PT
+from trackfusion.fusion.smoother import smooth
+
+from surveys import short_open_track_problem
+
+POS_TOL_M = 1e-9
+ATT_TOL_RAD = 1e-10
+SIGMA_REL_TOL = 1e-5
+
+
+def _with_parts(problem, part_s):
+    return replace(problem, smoother=problem.smoother.model_copy(update={"part_s": part_s}))
+
+
+def _assert_same(a, b):
+    assert np.array_equal(a.t_s, b.t_s)
+    assert np.abs(a.pos_n - b.pos_n).max() < POS_TOL_M
+    assert np.abs(a.vel_n - b.vel_n).max() < POS_TOL_M
+    dR = np.einsum("kji,kjl->kil", a.R_nb, b.R_nb) - np.eye(3)
+    assert np.abs(dR).max() < ATT_TOL_RAD
+    assert np.abs(a.accel_bias_mps2 - b.accel_bias_mps2).max() < 1e-10
+    assert np.abs(a.gyro_bias_radps - b.gyro_bias_radps).max() < 1e-12
+    assert a.iterations == b.iterations and a.final_cost == pytest.approx(b.final_cost, rel=1e-9)
+    assert [r["index"] for r in a.rejected_gnss] == [r["index"] for r in b.rejected_gnss]
+    assert np.array_equal(a.sigma_t_s, b.sigma_t_s)
+    assert np.abs(b.sigma_pos_n_m / a.sigma_pos_n_m - 1.0).max() < SIGMA_REL_TOL
+    assert np.abs(b.sigma_att_rad / a.sigma_att_rad - 1.0).max() < SIGMA_REL_TOL
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    problem = short_open_track_problem(tmp_path_factory.mktemp("parts"), seed=6)
+    return problem, smooth(problem)
+
+
+def test_cut_times_every_part_s_from_the_start():
+    assert np.allclose(PT.cut_times(0.0, 215.0, 100.0), [100.0, 200.0])
+    assert np.allclose(PT.cut_times(0.0, 205.0, 100.0), [100.0])  # a last part under part_s / 10 joins the one before
+    assert PT.cut_times(0.0, 215.0, 300.0).size == 0
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3])
+def test_parts_give_the_one_batch_solve(survey, parts):
+    problem, batch = survey
+    duration = batch.t_s[-1] - batch.t_s[0]
+    _assert_same(batch, smooth(_with_parts(problem, duration / parts + 1e-3)))
+
+
+def test_separator_holds_the_cut_keyframes_and_the_states_parts_share(survey):
+    """With a cut at 100 s: the keyframe at the cut (its IMU factor to the next is the next
+    part's neighbour), the bias segment running across it; no keyframe far from the cut."""
+    problem, batch = survey
+    captured = []
+    real = PT.PartitionedSolver.solve
+
+    def recording(self, gfg):
+        out = real(self, gfg)
+        captured.append(self.layout)
+        return out
+    PT.PartitionedSolver.solve = recording
+    try:
+        smooth(_with_parts(problem, 100.0))
+    finally:
+        PT.PartitionedSolver.solve = real
+    sep = set(captured[-1].separator.tolist())
+    k_cut = int(np.searchsorted(batch.t_s, batch.t_s[0] + 100.0))
+    assert X(k_cut) in sep and V(k_cut) in sep
+    assert not any(X(k) in sep for k in range(5, k_cut - 50))  # the wheel path reaches back a few keyframes only
+    m = int((batch.t_s[k_cut] - batch.t_s[0]) // problem.keyframes.bias_segment_s)
+    assert B(m) in sep
+    assert len(sep) < 200
+
+
+def _cut_at(t_s, t_cut):
+    return t_cut - t_s[0]
+
+
+def test_boundary_inside_a_static_period(survey):
+    problem, batch = survey
+    a, b = [iv for iv in problem.static_intervals_s if iv[0] > 1.0][0]
+    _assert_same(batch, smooth(_with_parts(problem, _cut_at(batch.t_s, 0.5 * (a + b)))))
+
+
+def test_boundary_inside_a_gnss_outage(survey):
+    problem, _ = survey
+    g = problem.gnss
+    keep = (g.t_s < 60.0) | (g.t_s > 90.0)  # a 30 s outage while moving
+    cut = replace(g, t_s=g.t_s[keep], pos_n=g.pos_n[keep], cov_n=g.cov_n[keep], fix_quality=g.fix_quality[keep])
+    outage = replace(problem, gnss=cut)
+    batch = smooth(outage)
+    _assert_same(batch, smooth(_with_parts(outage, _cut_at(batch.t_s, 75.0))))
+
+
+@pytest.mark.slow
+def test_boundary_on_a_total_station_hand_over(tmp_path):
+    """Short bridge survey (tests/test_total_station_run.py): the cut between the last reading
+    of the first station and the first of the next; the station corrections and their joint
+    covariance, and the prism gating's rejections, are the batch's."""
+    from trackfusion import pipeline as P
+    from trackfusion.simulation.scenarios import simulate_to_dir
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_total_station_run import SHORT
+    simulate_to_dir("bridge-total-station", tmp_path, seed=3, overrides=SHORT)
+    pl = P.load_pipeline(tmp_path / "pipeline.yaml")
+    log, _ = P._read(pl)
+    problem, _ = P._prepare_total_stations(pl, log, P.build_problem(pl, log, lambda _m: None)[0], lambda _m: None)
+    pr = problem.prisms
+    switch = int(np.flatnonzero(np.diff(pr.station) != 0)[0])
+    batch = smooth(problem)
+    parts = smooth(_with_parts(problem, _cut_at(batch.t_s, 0.5 * (pr.t_s[switch] + pr.t_s[switch + 1]))))
+    _assert_same(batch, parts)
+    assert np.abs(batch.station_states - parts.station_states).max() < 1e-8
+    assert np.abs(parts.station_cov - batch.station_cov).max() < 1e-4 * np.abs(batch.station_cov).max()
+    assert parts.rejected_prism == batch.rejected_prism and batch.rejected_prism
