@@ -129,3 +129,34 @@ def test_boundary_on_a_total_station_hand_over(tmp_path):
     assert np.abs(batch.station_states - parts.station_states).max() < 1e-8
     assert np.abs(parts.station_cov - batch.station_cov).max() < 1e-4 * np.abs(batch.station_cov).max()
     assert parts.rejected_prism == batch.rejected_prism and batch.rejected_prism
+
+
+def test_workers_give_the_numbers_of_one_process(survey):
+    """3 parts in 1, 2 and 3 local processes (trackfusion/parallel.py): the same bits."""
+    problem, _ = survey
+    three = _with_parts(problem, 75.0)
+    here = smooth(three)
+    for workers in (2, 3):
+        other = smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": workers})))
+        for name in ("pos_n", "vel_n", "R_nb", "accel_bias_mps2", "sigma_pos_n_m", "sigma_att_rad"):
+            assert np.array_equal(getattr(here, name), getattr(other, name)), (workers, name)
+
+
+def test_a_dead_worker_ends_the_solve_naming_its_part(survey, monkeypatch):
+    import os
+    import signal
+    from trackfusion.parallel import PartWorkerDied
+    problem, batch = survey
+    parent, last = os.getpid(), X(batch.t_s.size - 1)
+    real = PT._reduce
+
+    def dying(graph, interior):  # the process of the last part is killed
+        if os.getpid() != parent and last in interior:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real(graph, interior)
+    monkeypatch.setattr(PT, "_reduce", dying)
+    three = _with_parts(problem, 75.0)
+    with pytest.raises(PartWorkerDied, match=r"^the smoother's worker process of part 3 died \(killed by signal 9\)$"):
+        smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
+    import multiprocessing
+    assert not multiprocessing.active_children()

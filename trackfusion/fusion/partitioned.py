@@ -11,7 +11,8 @@ one with factors in two parts or more is a **separator** variable: the keyframes
 the states the parts share (a bias or scale segment across a cut, the GNSS error chain across
 it, the station set-ups seen in several parts).
 
-One step (:meth:`PartitionedSolver.solve`): each part's factors are reduced by eliminating its
+One step (:meth:`PartitionedSolver.solve`; in ``smoother.workers`` local processes,
+trackfusion/parallel.py, with the same numbers): each part's factors are reduced by eliminating its
 interior variables (QR, COLAMD order: GTSAM ``eliminatePartialSequential``), which leaves a
 Gaussian Bayes net of the interior given the separator and the reduced (Schur complement)
 factors on the separator. The separator system (every part's reduced factors) is solved, and
@@ -35,6 +36,7 @@ import gtsam
 import numpy as np
 
 from ..errors import FusionError
+from ..parallel import groups_of, run_step
 
 _INDEX_MASK = (1 << 56) - 1
 
@@ -71,13 +73,15 @@ def cut_times(t0: float, t1: float, part_s: float) -> np.ndarray:
 
 @dataclass
 class Partition:
-    """The parts of one run: the cut times (P-1,) [s] and the means to time its keys."""
+    """The parts of one run: the cut times (P-1,) [s], the means to time its keys, and the
+    number of processes to solve them in."""
 
     cuts_t_s: np.ndarray
     t_key: np.ndarray
     bias_seg: np.ndarray
     scale_seg: np.ndarray | None
     gnss_t_s: np.ndarray | None
+    workers: int = 1  # processes a step's parts are dealt to (trackfusion/parallel.py)
 
     @property
     def count(self) -> int:
@@ -171,8 +175,8 @@ class PartitionedSolver:
     is computed on the first graph and reused while the graphs keep its size (the iterations of
     one Gauss-Newton solve)."""
 
-    def __init__(self, partition: Partition):
-        self.partition = partition
+    def __init__(self, partition: Partition, workers: int = 1):
+        self.partition, self.workers = partition, workers
         self.layout: Layout | None = None
         self._size = -1
 
@@ -188,14 +192,35 @@ class PartitionedSolver:
 
     def solve(self, gfg: gtsam.GaussianFactorGraph) -> tuple[gtsam.VectorValues, "PartMarginals"]:
         """The Gauss-Newton step of ``gfg`` and the means to its marginals."""
-        reduced = [_reduce(g, ki) for g, ki in zip(self.split(gfg), self.layout.interior)]
-        separator = _eliminate_all(_union(r.reduced for r in reduced)).optimize() if self.layout.separator.size \
-            else gtsam.VectorValues()
-        delta = separator
-        for r in reduced:  # back-substitution: optimize(given) returns the given values and the part's
-            if r.net is not None:
-                delta = r.net.optimize(delta)
-        return delta, PartMarginals(reduced, self.layout)
+        parts = self.split(gfg)
+        interior = self.layout.interior
+        held: dict[int, _Reduced] = {}  # in the process that reduced them (trackfusion/parallel.py)
+
+        def reduce(group: list[int]) -> list[gtsam.GaussianFactorGraph]:
+            held.update({p: _reduce(parts[p], interior[p]) for p in group})
+            return [held[p].reduced for p in group]
+
+        def solve_separator(reduced: list[list[gtsam.GaussianFactorGraph]]) -> gtsam.VectorValues:
+            if not self.layout.separator.size:
+                return gtsam.VectorValues()
+            return _eliminate_all(_union(g for group in reduced for g in group)).optimize()
+
+        def back_substitute(group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
+            out = {}
+            for p in group:  # optimize(given) returns the given values and the part's
+                if held[p].net is not None:
+                    sol = held[p].net.optimize(given)
+                    out.update((int(k), sol.at(int(k))) for k in interior[p])
+            return out
+
+        separator, reduced, steps = run_step(groups_of(len(parts), self.workers), reduce, solve_separator,
+                                             back_substitute)
+        delta = gtsam.VectorValues(separator)
+        for step in steps:
+            for k, v in step.items():
+                delta.insert(k, v)
+        flat = [g for group in reduced for g in group]
+        return delta, PartMarginals([_Reduced(parts[p], None, flat[p]) for p in range(len(parts))], self.layout)
 
 
 class PartMarginals:

@@ -181,7 +181,7 @@ def smooth_in_segments(problem: FusionProblem, every: int, progress: Callable[[s
     ``while_waiting()``: called once the first worker process has finished, while the others
     still run (:func:`trackfusion.workers.run_forked`; not called without worker processes)."""
     global _JOB
-    if not independent_segments(problem):
+    if not independent_segments(problem) or problem.smoother.part_s is not None:  # exact parts instead
         return None
     say = progress or (lambda _m: None)
     sm = problem.smoother

@@ -569,7 +569,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     history = previous.history.copy() if previous is not None else StepHistory()
     if history.converged(step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
-    solver = PartitionedSolver(partition) if partition is not None else None
+    solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
     for it in range(1, max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state)
         if solver is not None:
@@ -960,7 +960,8 @@ def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, 
         return None
     cuts = cut_times(float(t_key[0]), float(t_key[-1]), part_s)
     gnss = problem.gnss if problem.factors.gnss.enabled else None
-    return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None)
+    return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None,
+                     problem.smoother.workers or 1)
 
 
 def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray
