@@ -160,3 +160,33 @@ def test_a_dead_worker_ends_the_solve_naming_its_part(survey, monkeypatch):
         smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
     import multiprocessing
     assert not multiprocessing.active_children()
+
+
+def test_a_dead_worker_exits_1_with_one_line_and_nothing_written(tmp_path, monkeypatch, capsys):
+    import os
+    import signal
+    import yaml
+    from trackfusion import cli
+    from trackfusion.simulation.scenarios import simulate_to_dir
+    from surveys import SHORT_OPEN_TRACK
+    simulate_to_dir("open-track-gnss", tmp_path, seed=6, overrides=SHORT_OPEN_TRACK)
+    data = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
+    data.setdefault("smoother", {}).update(part_s=75.0, workers=3)
+    data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
+    cfg = tmp_path / "parts.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+    parent = os.getpid()
+    real = PT._reduce
+
+    def dying(graph, interior):
+        if os.getpid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real(graph, interior)
+    monkeypatch.setattr(PT, "_reduce", dying)
+    out = tmp_path / "out"
+    assert cli.main(["run", str(cfg), "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()  # the progress lines, then the error's one line
+    assert err[-1] == "trackfusion run: error: the smoother's worker process of part 2 died (killed by signal 9)"
+    assert sum(line.startswith("trackfusion run: error") for line in err) == 1
+    assert not out.exists() or not any(out.iterdir())
+
