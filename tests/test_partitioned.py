@@ -190,3 +190,35 @@ def test_a_dead_worker_exits_1_with_one_line_and_nothing_written(tmp_path, monke
     assert sum(line.startswith("trackfusion run: error") for line in err) == 1
     assert not out.exists() or not any(out.iterdir())
 
+
+
+def test_ctrl_c_during_a_step_leaves_no_process_behind(survey, monkeypatch):
+    """SIGINT to the run while its part workers are busy: KeyboardInterrupt here, every worker
+    process gone."""
+    import multiprocessing
+    import os
+    import signal
+    import threading
+    import time
+    problem, _ = survey
+    parent = os.getpid()
+    real = PT._reduce
+    started = multiprocessing.get_context("fork").Event()
+
+    def slow(graph, interior):
+        if os.getpid() != parent:
+            started.set()
+            time.sleep(60.0)
+        return real(graph, interior)
+    monkeypatch.setattr(PT, "_reduce", slow)
+
+    def interrupt():
+        started.wait(30.0)
+        os.kill(parent, signal.SIGINT)
+    threading.Thread(target=interrupt, daemon=True).start()
+    three = _with_parts(problem, 75.0)
+    tic = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
+    assert time.perf_counter() - tic < 30.0
+    assert not multiprocessing.active_children()
