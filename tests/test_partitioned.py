@@ -222,3 +222,34 @@ def test_ctrl_c_during_a_step_leaves_no_process_behind(survey, monkeypatch):
         smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
     assert time.perf_counter() - tic < 30.0
     assert not multiprocessing.active_children()
+
+
+def test_default_run_is_the_one_batch_on_any_number_of_cpus(tmp_path, monkeypatch):
+    """``trackfusion run`` with the smoother's defaults, with ``smoother.workers: 1`` and with 3
+    parts in 2 workers: the same trajectory.csv, whatever the CPUs (a 4-CPU affinity here), so
+    the same log gives the same trajectory on any computer."""
+    import os
+    import yaml
+    from trackfusion.pipeline import parse_pipeline, run
+    from trackfusion.simulation.scenarios import simulate_to_dir
+    from trackfusion.sensors.fileio import read_csv_table
+    from surveys import SHORT_OPEN_TRACK
+    simulate_to_dir("open-track-gnss", tmp_path, seed=6, overrides=SHORT_OPEN_TRACK)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
+    outs = {}
+    for name, smoother in (("default", {}), ("one-batch", {"workers": 1}), ("parts", {"part_s": 75.0, "workers": 2})):
+        data = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
+        data.setdefault("smoother", {}).update(smoother)
+        data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
+        outs[name] = run(parse_pipeline(data, str(tmp_path / "pipeline.yaml"), tmp_path), tmp_path / name).out_dir
+    default = (outs["default"] / "trajectory.csv").read_bytes()
+    assert (outs["one-batch"] / "trajectory.csv").read_bytes() == default
+    a, b = (read_csv_table(outs[k] / "trajectory.csv") for k in ("default", "parts"))
+    assert max(np.abs(a[c] - b[c]).max() for c in ("e_m", "n_m", "u_m")) < 1e-8  # %.12g: 1e-9 m a digit here
+
+
+def test_removed_key_is_refused_with_what_replaced_it(tmp_path):
+    from trackfusion.errors import ConfigError
+    from trackfusion.pipeline import parse_pipeline
+    with pytest.raises(ConfigError, match=r"^p\.yaml: smoother\.slow_priors: removed; .*smoother\.part_s"):
+        parse_pipeline({"smoother": {"slow_priors": True}}, "p.yaml", tmp_path)

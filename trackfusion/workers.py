@@ -1,5 +1,5 @@
 """Forked worker processes: when the toolkit may start them (the log reader's decode workers,
-sensors/mcap_log.py; the smoother's parallel segments, fusion/segments.py).
+sensors/mcap_log.py; :func:`run_forked` for work beside an idle CPU, trackfusion/output_prefetch.py).
 
 Workers are forked, never spawned: a spawned worker would import the caller's main script again
 and every module anew, and forking lets a worker read the parent's arrays without copying them.
