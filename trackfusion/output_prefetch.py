@@ -1,7 +1,6 @@
 """What a run's outputs need, read and imported while a CPU would be idle.
 
-Called (``OutputPrefetch()``, e.g. as :func:`trackfusion.workers.run_forked`'s ``while_waiting``)
-in the parent, it does what the run would do afterwards anyway: import the modules of
+Called (``OutputPrefetch()``) in the parent, it does what the run would do afterwards anyway: import the modules of
 the evaluation and of the report figures (matplotlib) and read the reference trajectory
 (``inputs.reference``). Its results are the same as when done later, errors included: a reference
 that cannot be read raises its error when the evaluation asks for it (:meth:`reference`), at the

@@ -14,12 +14,11 @@ its parts; every child has exited when a step returns or raises.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import pickle
 from typing import Any, Callable
 
-from .workers import can_fork
+from .workers import can_fork, fork_context
 
 
 class PartWorkerDied(RuntimeError):
@@ -63,7 +62,7 @@ def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
         reduced = [reduce(g) for g in groups]
         given = solve(reduced)
         return given, reduced, [back_substitute(g, given) for g in groups]
-    ctx = multiprocessing.get_context("fork")
+    ctx = fork_context()
     children = []
     try:
         for g in groups[1:]:
