@@ -1,6 +1,6 @@
 """Benchmark: the exact time parts (``smoother.part_s``, fusion/partitioned.py) against one batch.
 
-Usage: python benchmarks/parts.py [--seeds 1 2 3] [--part-s 600] [--workers 1 2 4]
+Usage: python benchmarks/parts.py [--seeds 1 2 3] [--part-s 600] [--workers 1 2 4] [--default-only] [--out FILE]
 For each seed, the ``open-track-gnss`` survey (as simulated, 44 min at 200 Hz, wheel path on)
 is run with the default configuration (one batch on any machine), with ``smoother.workers: 1``
 (one batch, said explicitly) and in parts of ``--part-s`` seconds in each number of
@@ -8,7 +8,8 @@ is run with the default configuration (one batch on any machine), with ``smoothe
 largest position difference of trajectory.csv (%.12g: 10 nm at these coordinates) from the
 default's, the 5 m vertical MSE / ADEV and the whole run's wall time (``run_time_s``; the
 machine's load is written beside it: it is shared, so the times are indicative only).
-Simulations are cached as by benchmarks/accuracy.py.
+``--default-only``: the default run alone (the 5 m figures over more seeds). Simulations are
+cached as by benchmarks/accuracy.py.
 """
 
 from __future__ import annotations
@@ -37,12 +38,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--part-s", type=float, default=600.0)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
+    ap.add_argument("--default-only", action="store_true")
+    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     rows = []
     for seed in args.seeds:
         sim = simulated("open-track-gnss", seed)
-        runs = {"default": {}, "one batch": {"smoother": {"workers": 1}}}
-        for w in args.workers:
+        runs = {"default": {}} if args.default_only else {"default": {}, "one batch": {"smoother": {"workers": 1}}}
+        for w in [] if args.default_only else args.workers:
             runs[f"parts of {args.part_s:g} s, {w} workers"] = {"smoother": {"part_s": args.part_s, "workers": w}}
         ref = None
         for label, change in runs.items():
@@ -68,8 +71,8 @@ def main() -> None:
     print(json.dumps(summary, indent=1))
     commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                             cwd=Path(__file__).parent).stdout.strip()
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps({"commit": commit, "part_s": args.part_s, "seeds": args.seeds,
+    args.out.parent.mkdir(exist_ok=True)
+    args.out.write_text(json.dumps({"commit": commit, "part_s": args.part_s, "seeds": args.seeds,
                                    "machine": "2 shared CPUs (other agents' jobs running: times indicative)",
                                    "summary": summary, "runs": rows}, indent=1) + "\n")
 

@@ -210,7 +210,7 @@ class SmootherSettings(_Strict):
     Nothing here depends on the CPU count: the same log gives the same trajectory anywhere.
 
     ``part_s``: each Gauss-Newton step is solved in time parts of this duration
-    (fusion/partitioned.py: the one-batch answer, to rounding); null: in one piece.
+    (fusion/partitioned.py: the one-batch answer, to rounding; at least 10 s); null: in one piece.
 
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
     from the rate at which the steps shrink, is below this (fusion/convergence.py); 0: off.
@@ -223,7 +223,7 @@ class SmootherSettings(_Strict):
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
-    part_s: float | None = Field(None, gt=0)
+    part_s: float | None = Field(None, ge=10.0)
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":
