@@ -13,10 +13,12 @@ it, the station set-ups seen in several parts).
 
 One step (:meth:`PartitionedSolver.solve`; in ``smoother.workers`` local processes,
 trackfusion/parallel.py, with the same numbers): each part's factors are reduced by eliminating its
-interior variables (QR, COLAMD order: GTSAM ``eliminatePartialSequential``), which leaves a
-Gaussian Bayes net of the interior given the separator and the reduced (Schur complement)
-factors on the separator. The separator system (every part's reduced factors) is solved, and
-each part's Bayes net is back-substituted given the separator's values. No approximation is
+interior variables (multifrontal QR in COLAMD's order with the part's separator variables
+last: GTSAM ``eliminatePartialMultifrontal``), which leaves a Gaussian Bayes tree of the
+interior given the separator and the reduced (Schur complement) factors on the separator. The
+separator system (every part's reduced factors) is solved, and each part's Bayes tree is
+back-substituted given the separator's values, clique by clique from its root (the wrapper's
+Bayes tree has no ``optimize(given)``; its conditionals' ``solve`` does each clique). No approximation is
 made: the step is the one-batch step to rounding, so the cost, the line search's and the
 gating's decisions are the batch's.
 
@@ -138,22 +140,42 @@ class Layout:
 
 @dataclass
 class _Reduced:
-    """One part eliminated: its factors, the Bayes net of its interior given the separator,
+    """One part eliminated: its factors, the Bayes tree of its interior given the separator,
     and the reduced factors on the separator."""
 
     graph: gtsam.GaussianFactorGraph
-    net: gtsam.GaussianBayesNet | None
+    net: list | None  # the Bayes tree's conditionals, each after the ones it is conditioned on
     reduced: gtsam.GaussianFactorGraph
 
 
 def _reduce(graph: gtsam.GaussianFactorGraph, interior: np.ndarray) -> _Reduced:
     if interior.size == 0:
         return _Reduced(graph, None, graph)
+    keys = set(int(k) for k in interior)
+    rest = [int(k) for k in graph.keyVector() if int(k) not in keys]
+    full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(graph, rest) if rest else \
+        gtsam.Ordering.ColamdGaussianFactorGraph(graph)
+    ordering = gtsam.Ordering()
+    for i in range(full.size() - len(rest)):
+        ordering.push_back(full.at(i))
     try:
-        net, reduced = graph.eliminatePartialSequential([int(k) for k in interior], gtsam.EliminateQR)
+        tree, reduced = graph.eliminatePartialMultifrontal(ordering, gtsam.EliminateQR)
     except RuntimeError:
         raise FusionError("the factor graph is singular (a state no measurement determines)") from None
-    return _Reduced(graph, net, reduced)
+    return _Reduced(graph, _top_down(tree, ordering), reduced)
+
+
+def _top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> list:
+    """The conditionals of ``tree``'s cliques, each after the cliques it is conditioned on: in
+    reverse elimination order of their last frontal variable (a parent clique's variables are
+    eliminated after its children's)."""
+    cliques = {}
+    for i in range(ordering.size() - 1, -1, -1):
+        cond = tree[ordering.at(i)].conditional()
+        first = cond.firstFrontalKey()
+        if first not in cliques:
+            cliques[first] = cond
+    return list(cliques.values())
 
 
 def _eliminate_all(graph: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
@@ -207,9 +229,11 @@ class PartitionedSolver:
 
         def back_substitute(group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
             out = {}
-            for p in group:  # optimize(given) returns the given values and the part's
+            for p in group:
                 if held[p].net is not None:
-                    sol = held[p].net.optimize(given)
+                    sol = gtsam.VectorValues(given)
+                    for cond in held[p].net:
+                        sol.insert(cond.solve(sol))
                     out.update((int(k), sol.at(int(k))) for k in interior[p])
             return out
 
