@@ -8,7 +8,10 @@ is run with the default configuration (one batch on any machine), with ``smoothe
 largest position difference of trajectory.csv (%.12g: 10 nm at these coordinates) from the
 default's, the 5 m vertical MSE / ADEV and the whole run's wall time (``run_time_s``; the
 machine's load is written beside it: it is shared, so the times are indicative only).
-``--default-only``: the default run alone (the 5 m figures over more seeds). Simulations are
+``--default-only``: the default run alone (the 5 m figures over more seeds). ``--smoother``: the
+smoother alone (``smooth()`` on the problem ``trackfusion run`` builds) of the first seed, in one
+piece and in parts in each number of workers: solve and marginals wall time, largest position
+difference and relative position-sigma difference (results/parts_smoother.json). Simulations are
 cached as by benchmarks/accuracy.py.
 """
 
@@ -33,6 +36,31 @@ def _positions(out_dir: Path) -> np.ndarray:
     return np.column_stack([tab[c] for c in ("e_m", "n_m", "u_m")])
 
 
+def smoother_only(seed: int, part_s: float, workers: list[int], out: Path) -> None:
+    from dataclasses import replace
+    from trackfusion import pipeline as P
+    from trackfusion.fusion.smoother import smooth
+    sim = simulated("open-track-gnss", seed)
+    pl = P.load_pipeline(sim / "pipeline.yaml")
+    log, _ = P._read(pl)
+    prob = P.build_problem(pl, log, lambda _m: None)[0]
+    ref, rows = None, []
+    runs = [("one piece", {})] + [(f"parts of {part_s:g} s, {w} workers", {"part_s": part_s, "workers": w})
+                                  for w in workers]
+    for label, update in runs:
+        load = os.getloadavg()[0]
+        r = smooth(replace(prob, smoother=prob.smoother.model_copy(update=update)))
+        ref = r if ref is None else ref
+        row = {"seed": seed, "run": label, "solve_s": r.timings_s["solve_s"], "marginals_s": r.timings_s["marginals_s"],
+               "max_position_difference_m": float(np.abs(r.pos_n - ref.pos_n).max()),
+               "max_position_sigma_difference_rel": float(np.abs(r.sigma_pos_n_m / ref.sigma_pos_n_m - 1.0).max()),
+               "load_average_1min": load}
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    out.write_text(json.dumps({"machine": "2 shared CPUs (other agents' jobs running: times indicative)",
+                               "runs": rows}, indent=1) + "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
@@ -40,7 +68,11 @@ def main() -> None:
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
     ap.add_argument("--default-only", action="store_true")
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--smoother", action="store_true")
     args = ap.parse_args()
+    if args.smoother:
+        smoother_only(args.seeds[0], args.part_s, args.workers, RESULTS.with_name("parts_smoother.json"))
+        return
     rows = []
     for seed in args.seeds:
         sim = simulated("open-track-gnss", seed)
