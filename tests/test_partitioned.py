@@ -45,8 +45,18 @@ def _assert_same(a, b):
 
 
 @pytest.fixture(scope="module")
-def survey(tmp_path_factory):
-    problem = short_open_track_problem(tmp_path_factory.mktemp("parts"), seed=6)
+def survey_dir(tmp_path_factory):
+    """The short survey simulated once (its problem: :func:`survey`; runs of it: the CLI tests)."""
+    d = tmp_path_factory.mktemp("parts")
+    short_open_track_problem(d, seed=6)
+    return d
+
+
+@pytest.fixture(scope="module")
+def survey(survey_dir):
+    from trackfusion import pipeline as P
+    pl = P.load_pipeline(survey_dir / "pipeline.yaml")
+    problem = P.build_problem(pl, P._read(pl)[0], lambda _m: None)[0]
     return problem, smooth(problem)
 
 
@@ -162,18 +172,15 @@ def test_a_dead_worker_ends_the_solve_naming_its_part(survey, monkeypatch):
     assert not multiprocessing.active_children()
 
 
-def test_a_dead_worker_exits_1_with_one_line_and_nothing_written(tmp_path, monkeypatch, capsys):
+def test_a_dead_worker_exits_1_with_one_line_and_nothing_written(survey_dir, tmp_path, monkeypatch, capsys):
     import os
     import signal
     import yaml
     from trackfusion import cli
-    from trackfusion.simulation.scenarios import simulate_to_dir
-    from surveys import SHORT_OPEN_TRACK
-    simulate_to_dir("open-track-gnss", tmp_path, seed=6, overrides=SHORT_OPEN_TRACK)
-    data = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
+    data = yaml.safe_load((survey_dir / "pipeline.yaml").read_text())
     data.setdefault("smoother", {}).update(part_s=75.0, workers=3)
     data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
-    cfg = tmp_path / "parts.yaml"
+    cfg = survey_dir / "parts-dying.yaml"
     cfg.write_text(yaml.safe_dump(data))
     parent = os.getpid()
     real = PT._reduce
@@ -224,24 +231,21 @@ def test_ctrl_c_during_a_step_leaves_no_process_behind(survey, monkeypatch):
     assert not multiprocessing.active_children()
 
 
-def test_default_run_is_the_one_batch_on_any_number_of_cpus(tmp_path, monkeypatch):
+def test_default_run_is_the_one_batch_on_any_number_of_cpus(survey_dir, tmp_path, monkeypatch):
     """``trackfusion run`` with the smoother's defaults, with ``smoother.workers: 1`` and with 3
     parts in 2 workers: the same trajectory.csv, whatever the CPUs (a 4-CPU affinity here), so
     the same log gives the same trajectory on any computer."""
     import os
     import yaml
     from trackfusion.pipeline import parse_pipeline, run
-    from trackfusion.simulation.scenarios import simulate_to_dir
     from trackfusion.sensors.fileio import read_csv_table
-    from surveys import SHORT_OPEN_TRACK
-    simulate_to_dir("open-track-gnss", tmp_path, seed=6, overrides=SHORT_OPEN_TRACK)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3})
     outs = {}
     for name, smoother in (("default", {}), ("one-batch", {"workers": 1}), ("parts", {"part_s": 75.0, "workers": 2})):
-        data = yaml.safe_load((tmp_path / "pipeline.yaml").read_text())
+        data = yaml.safe_load((survey_dir / "pipeline.yaml").read_text())
         data.setdefault("smoother", {}).update(smoother)
         data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
-        outs[name] = run(parse_pipeline(data, str(tmp_path / "pipeline.yaml"), tmp_path), tmp_path / name).out_dir
+        outs[name] = run(parse_pipeline(data, str(survey_dir / "pipeline.yaml"), survey_dir), tmp_path / name).out_dir
     default = (outs["default"] / "trajectory.csv").read_bytes()
     assert (outs["one-batch"] / "trajectory.csv").read_bytes() == default
     a, b = (read_csv_table(outs[k] / "trajectory.csv") for k in ("default", "parts"))
