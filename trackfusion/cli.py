@@ -11,6 +11,7 @@ import sys
 from typing import NoReturn
 
 from .errors import TrackfusionError
+from .parallel import PartWorkerDied
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -194,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
     except TrackfusionError as exc:
         print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except PartWorkerDied as exc:  # not the input's fault: exit 1, one line
+        print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("trackfusion: interrupted", file=sys.stderr)
         return 130
