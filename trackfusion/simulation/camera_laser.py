@@ -53,9 +53,9 @@ class SimulatedUnit:
 
 def default_camera() -> CameraModel:
     """A 640 x 400 px camera with a 2800 px focal length (about 0.13 mm per pixel at 0.37 m) and
-    a moderate barrel distortion."""
+    a barrel distortion (k1 = -0.15: 0.25 % at the image corners)."""
     K = np.array([[2800.0, 0.0, 322.5], [0.0, 2805.0, 198.0], [0.0, 0.0, 1.0]])
-    return CameraModel(K, np.array([-0.18, 0.9, 4e-4, -3e-4, 0.0]), 640, 400)
+    return CameraModel(K, np.array([-0.15, 0.0, 4e-4, -3e-4, 0.0]), 640, 400)
 
 
 def default_units(half_distance_m: float, camera: CameraModel | None = None) -> dict[str, SimulatedUnit]:
