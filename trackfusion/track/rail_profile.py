@@ -186,9 +186,10 @@ def signed_distance_mm(head: RailHead, q_mm: np.ndarray, z_mm: np.ndarray
     """Signed distance of points to the unworn head (positive outside), any shape ``S``.
 
     Returns ``(d, nq, nz)``: distance [mm] and the outward unit normal of the head at the nearest
-    point (the gradient of ``d``). Each arc counts where the point's angle about its centre lies
-    within the arc; the flanks where the projection lies within them; the nearest of those wins
-    (on a convex head every outside or slightly inside point has one)."""
+    point (the gradient of ``d``). Each arc counts where the point's direction from its centre lies
+    within the arc's normals (two cross products with the end normals: every arc spans less than
+    180 deg), the flanks where the projection lies along them; the nearest of those wins (on a
+    convex head every outside or slightly inside point has one); NaN where none does."""
     q = np.asarray(q_mm, dtype=float)
     z = np.asarray(z_mm, dtype=float)
     best = np.full(q.shape, np.inf)
@@ -197,20 +198,23 @@ def signed_distance_mm(head: RailHead, q_mm: np.ndarray, z_mm: np.ndarray
     nz_out = np.zeros(q.shape)
     for arc in head.arcs:
         vq, vz = q - arc.centre_mm[0], z - arc.centre_mm[1]
-        rho = np.hypot(vq, vz)
-        a = np.arctan2(vq, vz)
+        # direction (sin a, cos a): within [a0, a1] iff cross(n0, v) >= 0 and cross(v, n1) >= 0
+        s0, c0, s1, c1 = np.sin(arc.a0_rad), np.cos(arc.a0_rad), np.sin(arc.a1_rad), np.cos(arc.a1_rad)
+        inside = (c0 * vq - s0 * vz >= 0) & (s1 * vz - c1 * vq >= 0)
+        rho = np.sqrt(vq * vq + vz * vz)
         d = rho - arc.radius_mm
-        ok = (a >= arc.a0_rad) & (a <= arc.a1_rad) & (np.abs(d) < best)
+        ok = inside & (np.abs(d) < best)
         best = np.where(ok, np.abs(d), best)
         d_out = np.where(ok, d, d_out)
-        nq_out = np.where(ok, vq / rho, nq_out)
-        nz_out = np.where(ok, vz / rho, nz_out)
+        inv = 1.0 / np.maximum(rho, 1e-12)
+        nq_out = np.where(ok, vq * inv, nq_out)
+        nz_out = np.where(ok, vz * inv, nz_out)
     tq, tz = head.flank_top_mm
     a3 = head.flank_normal_rad
     n = np.array([np.sin(a3), np.cos(a3)])
     for side in (1.0, -1.0):
         pq, pz = side * q - tq, z - tz
-        along = -pq * n[1] + pz * n[0]        # along the downward tangent (cos a3, -sin a3) * -1
+        along = -pq * n[1] + pz * n[0]        # minus the distance along the downward tangent
         d = pq * n[0] + pz * n[1]
         ok = (along <= 0) & (np.abs(d) < best)
         best = np.where(ok, np.abs(d), best)

@@ -16,7 +16,8 @@ plane (eq. 24, :class:`~trackfusion.vision.camera.CameraLaserUnit`), the robust 
   loss of the gauge face at 14 mm below the unworn top (a quadratic ``q(z)`` within 1 mm).
 
 A frame whose stripe is missing (too few stripe columns), whose fit is poor (inlier rms or
-inlier share out of bounds) or where a gauge point or wear window has too few points is a
+inlier count out of bounds), whose unworn field corner or gauge face is not seen (glare), or
+where a gauge point or wear window has too few points is a
 **fault**: it is listed with its reason and its figures are NaN, never numbers.
 """
 
@@ -35,11 +36,16 @@ from .stripe import StripeSettings, stripe_centres
 @dataclass(frozen=True)
 class FaultLimits:
     """When a rail's frame is a fault: fewer than ``min_columns`` stripe columns, inlier rms above
-    ``max_rms_mm``, fewer than ``min_inliers`` points on the unworn profile (worn parts of the
+    ``max_rms_mm`` or a profile origin less certain than ``max_pose_sd_mm`` (1 sigma, from the
+    inliers' geometry), fewer than ``min_inliers`` points on the unworn profile (worn parts of the
     head are not, so this is a count, not a share), fewer than ``min_window_points`` points in a
-    gauge-point or wear window."""
+    gauge-point or wear window, fewer than ``min_side_inliers`` unworn points on the field side
+    (q < -10 mm) or on the gauge face (q > 30 mm): those fix the pose of a worn head, and glare
+    can hide them."""
 
     min_columns: int = 120
+    min_side_inliers: int = 8
+    max_pose_sd_mm: float = 0.02
     max_rms_mm: float = 0.12
     min_inliers: int = 40
     min_window_points: int = 5
@@ -141,7 +147,9 @@ def measure_rail(unit: CameraLaserUnit, head: RailHead, images: np.ndarray, init
     vw, n_vw = masked_polyfit_at(q, zr, m & (np.abs(q) <= 2.0), np.zeros(len(q)), 1, sig)
     level = np.full(len(q), -GAUGE_POINT_DEPTH_MM)
     q_face, n_sw = masked_polyfit_at(zr, q, m & (q > 20.0) & (np.abs(zr - level[:, None]) <= 1.0), level, 2, sig)
-    return {"y": y, "z": z, "valid": valid, "on_head": m, "fit": fit, "vertical_wear_mm": -vw,
+    inl = fit.inliers
+    coverage = np.minimum((inl & (q < -10.0)).sum(axis=1), (inl & (q > 30.0)).sum(axis=1))
+    return {"y": y, "z": z, "valid": valid, "on_head": m, "fit": fit, "coverage": coverage, "vertical_wear_mm": -vw,
             "side_wear_mm": head.gauge_point_mm()[0] - q_face, "n_wear": np.minimum(n_vw, n_sw)}
 
 
@@ -178,7 +186,9 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
         face[side] = sg * yf
         fit = r["fit"]
         reasons = [("missing_stripe", r["valid"].sum(axis=1) < limits.min_columns),
-                   ("poor_fit", (fit.rms_mm > limits.max_rms_mm) | (fit.n_inliers < limits.min_inliers)),
+                   ("poor_fit", (fit.rms_mm > limits.max_rms_mm) | (fit.n_inliers < limits.min_inliers)
+                    | (fit.pose_sd[:, :2].max(axis=1) > limits.max_pose_sd_mm)),
+                   ("unworn_part_unseen", r["coverage"] < limits.min_side_inliers),
                    ("no_gauge_point", (n_face < limits.min_window_points) | (n_top < limits.min_window_points)),
                    ("no_wear_window", r["n_wear"] < limits.min_window_points)]
         taken = np.zeros(F, bool)

@@ -33,7 +33,8 @@ SIDE_SIGN = {"left": -1.0, "right": 1.0}
 class ProfileFit:
     """Per frame (F,): pose ``(y0_mm, z0_mm, roll_rad)`` (F, 3), rms of the inlier residuals [mm],
     number of inliers, number of valid points, the inlier mask (F, N), the signed distances of
-    the points to the fitted profile (F, N) [mm] (NaN where none) and the robust sigma (F,) [mm]."""
+    the points to the fitted profile (F, N) [mm] (NaN where none), the point noise (F,) [mm] and
+    the standard deviations (F, 3) of the pose (mm, mm, rad) from the inliers' geometry."""
 
     pose: np.ndarray
     rms_mm: np.ndarray
@@ -42,6 +43,7 @@ class ProfileFit:
     inliers: np.ndarray
     residual_mm: np.ndarray
     sigma_mm: np.ndarray
+    pose_sd: np.ndarray
 
 
 def to_profile_frame(y_mm, z_mm, pose: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
@@ -64,19 +66,23 @@ def _residuals(head, y, z, pose, side):
 
 
 def fit_profiles(head: RailHead, y_mm: np.ndarray, z_mm: np.ndarray, valid: np.ndarray, side: str,
-                 initial_pose: np.ndarray, noise_floor_mm: float = 0.02) -> ProfileFit:
+                 initial_pose: np.ndarray, noise_floor_mm: float = 0.02, stride: int = 2) -> ProfileFit:
     """Fit the unworn ``head`` to each frame's points ``(y_mm, z_mm)`` (F, N) (vehicle frame,
     ``valid`` (F, N) marks real points) starting from ``initial_pose`` (F, 3) (module
-    docstring). ``noise_floor_mm`` bounds the robust sigma from below (a noise-free frame)."""
+    docstring). ``noise_floor_mm`` bounds the robust sigma from below (a noise-free frame). The
+    iterations use every ``stride``-th point (neighbouring columns carry nearly the same
+    information), the residuals, inliers and rms returned are of all points."""
     pose = np.array(initial_pose, dtype=float, copy=True)
     valid = np.asarray(valid, bool) & np.isfinite(y_mm) & np.isfinite(z_mm)
-    y = np.where(valid, y_mm, 0.0)
-    z = np.where(valid, z_mm, 0.0)
-    scales = [4.0, 2.0, 1.0]
+    y_all = np.where(valid, y_mm, 0.0)
+    z_all = np.where(valid, z_mm, 0.0)
     sigma = noise_sigma_mm(y_mm, z_mm, valid, noise_floor_mm)
+    valid_all = valid
+    y, z, valid = y_all[:, ::stride], z_all[:, ::stride], valid[:, ::stride]
+    scales = [4.0, 2.0, 1.0]
     c_in = 3.0 * sigma[:, None]
     outside_scales = [4.0, 2.0, 1.0, 0.5, 0.25]
-    for it in range(len(scales) + len(outside_scales) + 4):
+    for it in range(len(scales) + len(outside_scales) + 3):
         d, J = _residuals(head, y, z, pose, side)
         ok = valid & np.isfinite(d)
         d = np.where(ok, d, 0.0)
@@ -93,18 +99,23 @@ def fit_profiles(head: RailHead, y_mm: np.ndarray, z_mm: np.ndarray, valid: np.n
             c = np.where(d > 0, c_out, c_in)
             w = np.where(a < c, (1 - (a / c) ** 2) ** 2, 0.0)
         w = np.where(ok, w, 0.0)
-        A = np.einsum("fn,fni,fnj->fij", w, J, J) + np.eye(3) * 1e-9
-        g = np.einsum("fn,fni,fn->fi", w, J, d)
+        A, g = _normal_equations(w, J, d)
         step = -np.linalg.solve(A, g[..., None])[..., 0]
         step[:, :2] = np.clip(step[:, :2], -5.0, 5.0)
         step[:, 2] = np.clip(step[:, 2], -0.02, 0.02)
         pose += np.where(np.isfinite(step), step, 0.0)
-    d, _ = _residuals(head, y, z, pose, side)
+    y, z, valid = y_all, z_all, valid_all
+    d, J = _residuals(head, y, z, pose, side)
     ok = valid & np.isfinite(d)
     inl = ok & (np.abs(np.where(ok, d, np.inf)) < 3.0 * sigma[:, None])   # worn points are not
     n_in = inl.sum(axis=1)
     rms = np.sqrt(np.where(inl, d * d, 0.0).sum(axis=1) / np.maximum(n_in, 1))
-    return ProfileFit(pose, rms, n_in, valid.sum(axis=1), inl, np.where(ok, d, np.nan), sigma)
+    # pose standard deviations: sigma^2 (J^T J)^-1 over the inliers, one point per stride
+    A, _ = _normal_equations(inl[:, ::stride].astype(float), np.where(inl[..., None], J, 0.0)[:, ::stride],
+                             np.zeros(inl[:, ::stride].shape))
+    cov = np.linalg.inv(A) * (np.maximum(rms, sigma) ** 2)[:, None, None]
+    pose_sd = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
+    return ProfileFit(pose, rms, n_in, valid.sum(axis=1), inl, np.where(ok, d, np.nan), sigma, pose_sd)
 
 
 def noise_sigma_mm(y_mm: np.ndarray, z_mm: np.ndarray, valid: np.ndarray, floor_mm: float) -> np.ndarray:
@@ -120,12 +131,22 @@ def noise_sigma_mm(y_mm: np.ndarray, z_mm: np.ndarray, valid: np.ndarray, floor_
     return np.maximum(1.4826 * med / np.sqrt(1.5), floor_mm)
 
 
+def _normal_equations(w: np.ndarray, J: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J^T W J`` (F, 3, 3) and ``J^T W d`` (F, 3) of per-frame weights (F, N), Jacobians
+    (F, N, 3) and residuals (F, N), from the six distinct sums."""
+    Jw = J * w[..., None]
+    A = np.empty((len(w), 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            A[:, i, j] = A[:, j, i] = (Jw[..., i] * J[..., j]).sum(axis=1)
+    A += np.eye(3) * 1e-9
+    return A, (Jw * d[..., None]).sum(axis=1)
+
+
 def _masked_median(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Row medians (F,) of ``a`` (F, N) over ``mask`` (NaN-free; rows without points give 1)."""
-    x = np.where(mask, a, np.nan)
-    with np.errstate(all="ignore"):
-        import warnings
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            m = np.nanmedian(x, axis=1)
-    return np.where(np.isfinite(m), m, 1.0)
+    """Row medians (F,) of ``a`` (F, N) over ``mask`` (rows without points give 1)."""
+    x = np.sort(np.where(mask, a, np.inf), axis=1)
+    n = mask.sum(axis=1)
+    lo = np.take_along_axis(x, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(x, np.maximum(n // 2, 0)[:, None], axis=1)[:, 0]
+    return np.where(n > 0, 0.5 * (lo + hi), 1.0)
