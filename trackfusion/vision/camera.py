@@ -75,11 +75,11 @@ class CameraLaserUnit:
 
     def to_camera(self, points_v: np.ndarray) -> np.ndarray:
         """Camera-frame points (N, 3) of vehicle-frame ones (no BLAS: a 3 x 3 product)."""
-        return np.einsum("ni,ij->nj", np.asarray(points_v) - self.t_v_c_m, self.R_vc)
+        return np.einsum("...i,ij->...j", np.asarray(points_v) - self.t_v_c_m, self.R_vc)
 
     def to_vehicle(self, points_c: np.ndarray) -> np.ndarray:
         """Vehicle-frame points (N, 3) of camera-frame ones."""
-        return np.einsum("ij,nj->ni", self.R_vc, np.asarray(points_c)) + self.t_v_c_m
+        return np.einsum("ij,...j->...i", self.R_vc, np.asarray(points_c)) + self.t_v_c_m
 
     def pixels_to_vehicle(self, uv_px: np.ndarray) -> np.ndarray:
         """Vehicle-frame points (N, 3) [m] of stripe pixels (N, 2) on the laser plane: undistortion
