@@ -94,13 +94,17 @@ def masked_polyfit_at(x: np.ndarray, y: np.ndarray, mask: np.ndarray, x0: np.nda
     (glare or a stray reflection in the window)."""
     xc = np.where(mask, x - x0[:, None], 0.0)
     yc = np.where(mask, y, 0.0)
-    V = np.stack([xc ** k for k in range(deg + 1)], axis=-1)
+    powers = [np.ones_like(xc)]
+    for _ in range(2 * deg):
+        powers.append(powers[-1] * xc)
     for _ in range(1 if sigma is None else 2):
-        Vm = V * mask[..., None]
-        A = np.einsum("fni,fnj->fij", Vm, Vm) + np.eye(deg + 1) * 1e-12
-        coef = np.linalg.solve(A, np.einsum("fni,fn->fi", Vm, yc)[..., None])[..., 0]
+        m = mask.astype(float)
+        moments = [(p * m).sum(axis=1) for p in powers]             # sums of x^k, k <= 2 deg
+        A = np.stack([np.stack([moments[i + j] for j in range(deg + 1)], -1) for i in range(deg + 1)], -2)
+        b = np.stack([(powers[i] * yc * m).sum(axis=1) for i in range(deg + 1)], -1)
+        coef = np.linalg.solve(A + np.eye(deg + 1) * 1e-12, b[..., None])[..., 0]
         if sigma is not None:
-            res = yc - np.einsum("fni,fi->fn", V, coef)
+            res = yc - sum(coef[:, i:i + 1] * powers[i] for i in range(deg + 1))
             mask = mask & (np.abs(res) <= 3.0 * sigma[:, None])
     n = mask.sum(axis=1)
     return np.where(n > deg, coef[:, 0], np.nan), n
@@ -115,9 +119,13 @@ def running_top(y: np.ndarray, z: np.ndarray, mask: np.ndarray, window_mm: float
     y_top = np.take_along_axis(y, i_top[:, None], axis=1)[:, 0]
     win = mask & (np.abs(y - y_top[:, None]) <= window_mm)
     xc = np.where(win, y - y_top[:, None], 0.0)
-    V = np.stack([np.ones_like(xc), xc, xc * xc], axis=-1) * win[..., None]
-    A = np.einsum("fni,fnj->fij", V, V) + np.eye(3) * 1e-12
-    coef = np.linalg.solve(A, np.einsum("fni,fn->fi", V, np.where(win, z, 0.0))[..., None])[..., 0]
+    m = win.astype(float)
+    p = [m, xc * m, xc * xc * m, xc ** 3 * m, xc ** 4 * m]
+    mo = [q.sum(axis=1) for q in p]
+    A = np.stack([np.stack(mo[i:i + 3], -1) for i in range(3)], -2) + np.eye(3) * 1e-12
+    zz = np.where(win, z, 0.0)
+    b = np.stack([(p[i] * zz).sum(axis=1) for i in range(3)], -1)
+    coef = np.linalg.solve(A, b[..., None])[..., 0]
     c0, c1, c2 = coef.T
     with np.errstate(divide="ignore", invalid="ignore"):
         xv = np.where(c2 < 0, -c1 / (2 * c2), 0.0)
@@ -210,3 +218,37 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
         {k: nan(r["side_wear_mm"]) for k, r in rails.items()},
         {k: np.where(bad[:, None], np.nan, o[k]) for k in SIDE_SIGN},
         {k: nan(r["fit"].rms_mm) for k, r in rails.items()}, faults)
+
+
+def concatenate(parts: list[FrameMeasurements]) -> FrameMeasurements:
+    """One :class:`FrameMeasurements` of consecutive batches."""
+    cat = np.concatenate
+    sides = list(SIDE_SIGN)
+    return FrameMeasurements(
+        cat([p.gauge_m for p in parts]), cat([p.cross_level_m for p in parts]),
+        {k: cat([p.vertical_wear_mm[k] for p in parts]) for k in sides},
+        {k: cat([p.side_wear_mm[k] for p in parts]) for k in sides},
+        {k: cat([p.pose[k] for p in parts]) for k in sides},
+        {k: cat([p.rms_mm[k] for p in parts]) for k in sides},
+        sorted(f for p in parts for f in p.faults))
+
+
+def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, *, batch: int = 64,
+                workers: int = 1, **kwargs) -> FrameMeasurements:
+    """:func:`measure_frames` over a whole run in batches of ``batch`` frames (bounded memory),
+    split over ``workers`` forked processes (:func:`trackfusion.workers.run_forked`: the images
+    are read from the parent's memory, only the figures travel back) when that is possible."""
+    from ..workers import can_fork, run_forked
+
+    F = len(roll_rad)
+
+    def part(lo: int, hi: int) -> FrameMeasurements:
+        out = [measure_frames(units, head, {k: v[a:min(a + batch, hi)] for k, v in images.items()},
+                              roll_rad[a:min(a + batch, hi)], first_frame=a, **kwargs)
+               for a in range(lo, hi, batch)]
+        return concatenate(out)
+
+    if workers >= 2 and can_fork(workers) and F >= 2 * batch:
+        edges = np.linspace(0, F, workers + 1).astype(int)
+        return concatenate(run_forked(lambda i: part(edges[i], edges[i + 1]), workers))
+    return part(0, F)
