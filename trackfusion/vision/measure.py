@@ -154,7 +154,7 @@ def measure_rail(unit: CameraLaserUnit, head: RailHead, images: np.ndarray, init
     sig = fit.sigma_mm
     vw, n_vw = masked_polyfit_at(q, zr, m & (np.abs(q) <= 2.0), np.zeros(len(q)), 1, sig)
     level = np.full(len(q), -GAUGE_POINT_DEPTH_MM)
-    q_face, n_sw = masked_polyfit_at(zr, q, m & (q > 20.0) & (np.abs(zr - level[:, None]) <= 1.0), level, 2, sig)
+    q_face, n_sw = masked_polyfit_at(zr, q, m & (q > 20.0) & (np.abs(zr - level[:, None]) <= 1.5), level, 2, sig)
     inl = fit.inliers
     coverage = np.minimum((inl & (q < -10.0)).sum(axis=1), (inl & (q > 30.0)).sum(axis=1))
     return {"y": y, "z": z, "valid": valid, "on_head": m, "fit": fit, "coverage": coverage, "vertical_wear_mm": -vw,
