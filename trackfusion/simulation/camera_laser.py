@@ -24,8 +24,8 @@ from ..errors import SimulationError
 from ..track.rail_profile import (RailHead, running_top_and_gauge_point, sample_worn_mm,
                                   segment_normals)
 from ..vision.camera import CameraLaserUnit, CameraModel, look_at
+from ..vision.profile_fit import SIDE_SIGN
 
-SIDE_SIGN = {"left": -1.0, "right": 1.0}
 #: rail inclination towards the track centre (1 in 40).
 RAIL_INCLINATION_RAD = float(np.arctan(1 / 40))
 
