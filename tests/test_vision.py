@@ -203,3 +203,14 @@ def test_calibrate_vision_cli_bad_input_exit_2(tmp_path, capsys):
     assert not (tmp_path / "c.yaml").exists()
     with pytest.raises(VisionError):
         load_calibration(tmp_path / "missing.yaml")
+
+
+def test_bad_frames_input_is_named_before_computing():
+    sims, run, imgs, _ = _frames(2, noise=False)
+    units = {k: s.unit for k, s in sims.items()}
+    with pytest.raises(VisionError, match="left images: 2 frames, roll series has 3"):
+        measure_frames(units, HEAD, imgs, np.zeros(3))
+    with pytest.raises(VisionError, match="left images: 320 x 400 px"):
+        measure_frames(units, HEAD, {**imgs, "left": imgs["left"][:, :, :320]}, run.roll_rel_rad)
+    with pytest.raises(VisionError, match="no right unit"):
+        measure_frames({"left": units["left"]}, HEAD, imgs, run.roll_rel_rad)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import VisionError
 from ..track.rail_profile import GAUGE_POINT_DEPTH_MM, RailHead
 from .camera import CameraLaserUnit
 from .profile_fit import SIDE_SIGN, fit_profiles, to_profile_frame
@@ -169,12 +170,31 @@ def nominal_pose(head: RailHead, side: str, gauge_nominal_m: float, n: int) -> n
     return np.tile([-s * half_mm, 0.0, -s * np.arctan(1 / 40)], (n, 1))
 
 
+def check_inputs(units: dict, images: dict, roll_rad: np.ndarray) -> None:
+    """Raise :class:`~trackfusion.errors.VisionError` naming what is wrong before any computing:
+    a side without a unit or images, images that are not (F, H, W) 8-bit grey of the calibrated
+    camera's size, or a frame count that differs from the roll series'."""
+    for side in SIDE_SIGN:
+        if side not in units or side not in images:
+            raise VisionError(f"vision: no {side} {'unit' if side not in units else 'images'}")
+        img = images[side]
+        cam = units[side].camera
+        if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.dtype == np.uint8):
+            raise VisionError(f"vision: {side} images: expected an (F, H, W) uint8 array")
+        if img.shape[1:] != (cam.height_px, cam.width_px):
+            raise VisionError(f"vision: {side} images: {img.shape[2]} x {img.shape[1]} px, "
+                              f"the calibrated camera's are {cam.width_px} x {cam.height_px}")
+        if len(img) != len(roll_rad):
+            raise VisionError(f"vision: {side} images: {len(img)} frames, roll series has {len(roll_rad)}")
+
+
 def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, *,
                    gauge_nominal_m: float = 1.435, limits: FaultLimits = FaultLimits(),
                    stripe: StripeSettings = StripeSettings(), first_frame: int = 0) -> FrameMeasurements:
     """Gauge, cross-level and wear of a batch of frames: ``images[side]`` (F, H, W) of the
     ``units[side]`` (``"left"``, ``"right"``), ``roll_rad`` (F,) the roll of the measuring frame
     relative to the track (module docstring). ``first_frame`` numbers the faults."""
+    check_inputs(units, images, roll_rad)
     F = len(roll_rad)
     rails = {side: measure_rail(units[side], head, images[side],
                                 nominal_pose(head, side, gauge_nominal_m, F), stripe) for side in SIDE_SIGN}
@@ -240,6 +260,7 @@ def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray,
     are read from the parent's memory, only the figures travel back) when that is possible."""
     from ..workers import can_fork, run_forked
 
+    check_inputs(units, images, roll_rad)
     F = len(roll_rad)
 
     def part(lo: int, hi: int) -> FrameMeasurements:
