@@ -18,6 +18,10 @@ left rail), glare on 2 % and missing stripes on 1 % of the frames -- and measure
   again with a 0.01 deg rms error on it, to show what the roll source must deliver;
 - wear on the worn stretch (ramps left out): largest vertical and side wear error [mm] of a
   single frame and of 1 m means (target within 0.2);
+- the seed's baseline for the roll: Madgwick's filter on the measuring frame's IMU (tactical
+  MEMS datasheet errors, 60 s lead-in, a transition into an 800 m curve with 100 mm cant in the
+  stretch), with the seed's correction for the track's acceleration (eq. 53) and without it
+  (eq. 52), its roll minus the design cant used in eq. 37: roll, gauge and cross-level errors;
 - faults: frames listed, by reason, against the frames rendered without stripe;
 - speed: frames per second (both cameras) of the per-frame processing in one process and on two
   forked processes (target >= 500 on 2 cores), and frames per CPU-second of the one-process run
@@ -42,12 +46,16 @@ import numpy as np
 from trackfusion.simulation.camera_laser import (StripeLook, default_units, frame_images, section_points_v,
                                                  simulate_run, stripe_curve_px)
 from trackfusion.simulation.vision_calibration import write_calibration_set
+from trackfusion.simulation.vision_imu import DesignCurve, ImuSpec, imu_signals
 from trackfusion.track.rail_profile import rail_head, sample_unworn_mm, segment_normals
 from trackfusion.vision.calibration import calibrate_folder
+from trackfusion.vision.madgwick import madgwick_roll
 from trackfusion.vision.measure import measure_run
 
 HEAD = rail_head("60E1")
 HALF_M = 1.435 / 2 + HEAD.gauge_point_mm()[0] / 1000
+LEAD_S = 60.0
+MADGWICK_BETA = 0.002
 WEAR = {"start_m": 30.0, "end_m": 100.0, "vertical_mm": 1.0, "side_mm": 2.0, "side_rail": "left"}
 
 
@@ -98,7 +106,24 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     cal = calibration_figures(sims, units, results)
     t_cal = time.perf_counter() - t0
 
-    run = simulate_run(HEAD, n_frames=n_frames, speed_mps=speed_mps, wear=WEAR, seed=seed)
+    # 60 s of IMU lead-in before the filmed stretch (the roll filter's start-up), then a
+    # transition into a left-hand 800 m curve with 100 mm cant 20 m into the stretch
+    lead = int(LEAD_S * 250)
+    s_lead = speed_mps * lead / 250
+    wear = {**WEAR, "start_m": WEAR["start_m"] + s_lead, "end_m": WEAR["end_m"] + s_lead}
+    full_run = simulate_run(HEAD, n_frames=lead + n_frames, speed_mps=speed_mps, wear=wear, seed=seed)
+    curve = DesignCurve(transition_start_m=s_lead + 20.0)
+    gyro, accel = imu_signals(full_run.t_s, full_run.s_m, full_run.y_rel_m, full_run.z_rel_m,
+                              full_run.roll_rel_rad, curve, ImuSpec(), np.random.default_rng(7 + seed))
+    rho, cant = curve.at(full_run.s_m)
+    speed = np.gradient(full_run.s_m, full_run.t_s)
+    madgwick = {}
+    for name, corrected in (("seed_corrected", True), ("plain", False)):
+        roll = madgwick_roll(full_run.t_s, gyro, accel, speed, rho, beta=MADGWICK_BETA,
+                             roll0_rad=float(np.arctan2(accel[0, 1], accel[0, 2])),
+                             correct_track_acceleration=corrected)
+        madgwick[name] = (roll - cant)[lead:]
+    run = full_run.frames(lead)
     images, flags = {}, {}
     for i, side in enumerate(("left", "right")):
         images[side], flags[side] = frame_images(sims[side], HEAD, run, StripeLook(), seed=1000 * seed + i)
@@ -117,15 +142,22 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     roll_err = rng.normal(0.0, np.radians(0.01), n_frames)
     m_roll = measure_run(units, HEAD, images, run.roll_rel_rad + roll_err, workers=2)
 
+    baseline = {}
+    for name, roll_rel in madgwick.items():
+        mm = measure_run(units, HEAD, images, roll_rel, workers=2)
+        baseline[name] = {"roll_rms_error_deg": float(np.degrees(np.sqrt(np.mean((roll_rel - run.roll_rel_rad) ** 2)))),
+                          "gauge_rms_error_mm": rms((mm.gauge_m - run.gauge_m) * 1e3),
+                          "cross_level_rms_error_mm": rms((mm.cross_level_m - run.cross_level_m) * 1e3)}
+
     eg = (m.gauge_m - run.gauge_m) * 1e3
     ec = (m.cross_level_m - run.cross_level_m) * 1e3
-    full = (run.s_m > WEAR["start_m"] + 5) & (run.s_m < WEAR["end_m"] - 5)
-    wear = {}
+    full = (run.s_m > wear["start_m"] + 5) & (run.s_m < wear["end_m"] - 5)
+    wear_fig = {}
     for side in ("left", "right"):
         ev = (m.vertical_wear_mm[side] - run.vertical_wear_mm[side])[full]
         es = (m.side_wear_mm[side] - run.side_wear_mm[side])[full]
         metre = np.floor(run.s_m[full]).astype(int)
-        wear[side] = {"vertical_max_abs_mm": max_abs(ev), "vertical_rms_mm": rms(ev),
+        wear_fig[side] = {"vertical_max_abs_mm": max_abs(ev), "vertical_rms_mm": rms(ev),
                       "side_max_abs_mm": max_abs(es), "side_rms_mm": rms(es),
                       "vertical_max_abs_1m_mean_mm": max_abs(per_metre_mean(metre, ev)),
                       "side_max_abs_1m_mean_mm": max_abs(per_metre_mean(metre, es)),
@@ -140,7 +172,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
         "cross_level_rms_error_mm": rms(ec), "cross_level_max_abs_error_mm": max_abs(ec),
         "with_roll_error_0p01deg": {"gauge_rms_error_mm": rms((m_roll.gauge_m - run.gauge_m) * 1e3),
                                     "cross_level_rms_error_mm": rms((m_roll.cross_level_m - run.cross_level_m) * 1e3)},
-        "wear_worn_stretch": wear,
+        "wear_worn_stretch": wear_fig,
+        "madgwick_roll_baseline": baseline,
         "faults": {"frames_listed": len(listed), "by_reason": dict(Counter(r for _, _, r in m.faults)),
                    "frames_without_stripe": len(no_stripe),
                    "without_stripe_all_listed": bool(set(no_stripe) <= listed),
@@ -172,6 +205,10 @@ def main() -> None:
         "cross_level_rms_error_mm": max(r["cross_level_rms_error_mm"] for r in runs),
         "cross_level_rms_error_mm_with_roll_error_0p01deg": max(
             r["with_roll_error_0p01deg"]["cross_level_rms_error_mm"] for r in runs),
+        "cross_level_rms_error_mm_madgwick_seed_corrected": max(
+            r["madgwick_roll_baseline"]["seed_corrected"]["cross_level_rms_error_mm"] for r in runs),
+        "cross_level_rms_error_mm_madgwick_plain": max(
+            r["madgwick_roll_baseline"]["plain"]["cross_level_rms_error_mm"] for r in runs),
         "wear_max_abs_error_mm": max(max(w["vertical_max_abs_mm"], w["side_max_abs_mm"])
                                      for r in runs for w in r["wear_worn_stretch"].values()),
         "wear_max_abs_error_1m_mean_mm": max(max(w["vertical_max_abs_1m_mean_mm"], w["side_max_abs_1m_mean_mm"])

@@ -15,7 +15,7 @@ the profile roll (rail inclination 1:40 inwards plus the track's cross-level til
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
@@ -225,6 +225,11 @@ class VisionRun:
     cross_level_m: np.ndarray
     origin_v_m: dict
     roll_v_rad: dict
+
+    def frames(self, first: int) -> "VisionRun":
+        """The run from frame ``first`` on (e.g. after an IMU filter's lead-in)."""
+        cut = lambda x: {k: v[first:] for k, v in x.items()} if isinstance(x, dict) else x[first:]  # noqa: E731
+        return VisionRun(*(cut(getattr(self, f.name)) for f in fields(self)))
 
 
 def _track_series(s_m: np.ndarray, rms: float, corr_m: float, rng: np.random.Generator) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Per-frame measurement: stripe -> points -> fitted profiles -> gauge, cross-level and wear.
 
 For each frame and rail: stripe centres per column (:mod:`.stripe`), undistortion and the laser
-plane (eq. 24, :class:`~trackfusion.vision.camera.CameraLaserUnit`), the robust profile fit
+plane (eq. 24, :class:`~trackfusion.vision.camera.CameraLaserUnit`), the points kept in
+continuous runs along the line (:func:`continuous_segments`: glare islands go), the robust profile fit
 (:mod:`.profile_fit`). Then, with the roll ``phi`` of the measuring frame relative to the track
 (seed 001's ``phi^{t,tgms}``, from the inertial part), for the pair of rails:
 
@@ -84,7 +85,22 @@ def rail_points_mm(unit: CameraLaserUnit, images: np.ndarray, stripe: StripeSett
     if uv.size:
         p_v = unit.pixels_to_vehicle(uv)
         y[valid], z[valid] = p_v[:, 1] * 1e3, p_v[:, 2] * 1e3
-    return y, z, valid & np.isfinite(y)
+    valid = valid & np.isfinite(y)
+    return y, z, valid & continuous_segments(y, z, valid)
+
+
+def continuous_segments(y: np.ndarray, z: np.ndarray, valid: np.ndarray, jump_mm: float = 1.5,
+                        min_columns: int = 10) -> np.ndarray:
+    """Mask (F, W) of the points in runs of at least ``min_columns`` consecutive columns whose
+    neighbours are less than ``jump_mm`` apart: the laser line on the head is continuous, glare
+    islands and stray reflections are short runs off it."""
+    F, W = y.shape
+    step = np.hypot(np.diff(y, axis=1), np.diff(z, axis=1))
+    joined = valid[:, 1:] & valid[:, :-1] & (step < jump_mm)
+    start = np.concatenate([np.ones((F, 1), bool), ~joined], axis=1)
+    label = np.cumsum(start.ravel()).reshape(F, W)
+    counts = np.bincount(label[valid], minlength=label.max() + 1)
+    return valid & (counts[label] >= min_columns)
 
 
 def masked_polyfit_at(x: np.ndarray, y: np.ndarray, mask: np.ndarray, x0: np.ndarray, deg: int,
