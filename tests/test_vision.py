@@ -214,3 +214,24 @@ def test_bad_frames_input_is_named_before_computing():
         measure_frames(units, HEAD, {**imgs, "left": imgs["left"][:, :, :320]}, run.roll_rel_rad)
     with pytest.raises(VisionError, match="no right unit"):
         measure_frames({"left": units["left"]}, HEAD, imgs, run.roll_rel_rad)
+
+
+def test_madgwick_roll_in_a_steady_canted_curve():
+    from trackfusion.simulation.vision_imu import DesignCurve, imu_signals
+    from trackfusion.vision.madgwick import madgwick_roll
+    t = np.arange(0, 40, 1 / 250)
+    v = 30.0
+    s = v * t
+    zero = np.zeros_like(t)
+    curve = DesignCurve(transition_start_m=-1e3, radius_m=800.0, cant_mm=100.0)   # all arc
+    gyro, accel = imu_signals(t, s, zero, zero, zero, curve, None, np.random.default_rng(0))
+    rho, cant = curve.at(s)
+    roll = madgwick_roll(t, gyro, accel, np.full_like(t, v), rho, beta=0.01)
+    # the normalised gradient step leaves a limit cycle of beta * dt (4e-5 rad): its mean
+    assert abs(np.mean(roll[-250:] - cant[-250:])) < np.radians(0.001)
+    assert np.abs(roll[-250:] - cant[-250:]).max() < 0.01 / 250 * 1.2
+    # without the track's acceleration the filter takes the specific force for gravity: the
+    # centripetal acceleration adds atan(V^2 / (R g)) to its roll
+    plain = madgwick_roll(t, gyro, accel, np.full_like(t, v), rho, beta=0.01, correct_track_acceleration=False)
+    expected = cant[-1] + np.arctan(v * v / 800.0 / 9.81)
+    assert abs(np.mean(plain[-250:]) - expected) < np.radians(0.002)
