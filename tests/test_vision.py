@@ -235,3 +235,25 @@ def test_madgwick_roll_in_a_steady_canted_curve():
     plain = madgwick_roll(t, gyro, accel, np.full_like(t, v), rho, beta=0.01, correct_track_acceleration=False)
     expected = cant[-1] + np.arctan(v * v / 800.0 / 9.81)
     assert abs(np.mean(plain[-250:]) - expected) < np.radians(0.002)
+
+
+def test_short_islands_off_the_line_are_dropped():
+    from trackfusion.vision.measure import continuous_segments
+    y = np.tile(np.linspace(0.0, 60.0, 300), (2, 1))
+    z = np.zeros_like(y)
+    z[0, 100:106] -= 3.0                      # a glare island 3 mm off the line, 6 columns
+    valid = np.ones_like(y, bool)
+    valid[1, 150] = False                     # a missing column splits the line, both halves stay
+    keep = continuous_segments(y, z, valid)
+    assert not keep[0, 100:106].any() and keep[0, :100].all() and keep[0, 106:].all()
+    assert keep[1].sum() == 299
+
+
+def test_forked_batches_give_the_same_figures():
+    from trackfusion.vision.measure import measure_run
+    sims, run, imgs, _ = _frames(8, noise=True)
+    units = {k: s.unit for k, s in sims.items()}
+    one = measure_run(units, HEAD, imgs, run.roll_rel_rad, batch=4, workers=1)
+    two = measure_run(units, HEAD, imgs, run.roll_rel_rad, batch=4, workers=2)
+    np.testing.assert_array_equal(one.gauge_m, two.gauge_m)
+    assert one.faults == two.faults
