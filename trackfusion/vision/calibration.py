@@ -72,10 +72,18 @@ def _load_set(folder: Path) -> dict:
         raise VisionError(f"{path}: calibration set description missing")
     try:
         doc = yaml.safe_load(path.read_text())
-        doc["board"]["inner_corners"], doc["board"]["square_m"], doc["views"][0]["board"]
-        doc["fixture"]["view"], doc["fixture"]["rotation_vector_vb_rad"], doc["fixture"]["position_v_m"]
-    except (yaml.YAMLError, KeyError, IndexError, TypeError) as exc:
-        raise VisionError(f"{path}: invalid calibration set ({type(exc).__name__}: {exc})") from None
+    except yaml.YAMLError as exc:
+        raise VisionError(f"{path}: not YAML ({exc})") from None
+    required = {"board": ("inner_corners", "square_m"), "fixture": ("view", "rotation_vector_vb_rad", "position_v_m")}
+    for section, keys in required.items():
+        for key in keys:
+            if not isinstance(doc, dict) or not isinstance(doc.get(section), dict) or key not in doc[section]:
+                raise VisionError(f"{path}: {section}.{key}: missing")
+    views = doc.get("views")
+    if not isinstance(views, list) or not views or not all(isinstance(v, dict) and "board" in v for v in views):
+        raise VisionError(f"{path}: views: a list of {{board: FILE, laser: FILE}} is needed")
+    if not 0 <= int(doc["fixture"]["view"]) < len(views):
+        raise VisionError(f"{path}: fixture.view: {doc['fixture']['view']} is not one of the {len(views)} views")
     if doc.get("side") not in ("left", "right"):
         raise VisionError(f"{path}: side: must be 'left' or 'right'")
     return doc
