@@ -257,3 +257,18 @@ def test_forked_batches_give_the_same_figures():
     two = measure_run(units, HEAD, imgs, run.roll_rel_rad, batch=4, workers=2)
     np.testing.assert_array_equal(one.gauge_m, two.gauge_m)
     assert one.faults == two.faults
+
+
+def test_glare_columns_give_no_centres():
+    sims = default_units(HALF_M)
+    cam = sims["left"].unit.camera
+    u = np.linspace(-5, 650, 400)
+    v = 200.0 + 0.1 * u
+    look = StripeLook(speckle_contrast=0.0)
+    img = render_stripe(cam, np.column_stack([u, v]), np.ones(len(u)), look)
+    yy, xx = np.mgrid[0:cam.height_px, 0:cam.width_px]
+    img += 600.0 * np.exp(-0.5 * (((xx - 300) / 15) ** 2 + ((yy - 215) / 6) ** 2))   # a sun glint
+    from trackfusion.simulation.camera_laser import expose
+    rows = stripe_centres(expose(img, look, None))
+    assert np.isnan(rows[280:321]).all()
+    assert np.isfinite(rows[:250]).all() and np.isfinite(rows[350:-3]).all()

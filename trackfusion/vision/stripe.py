@@ -4,8 +4,10 @@ Per column: the brightest row (``cv2.reduceArgMax``), then the centre of gravity
 (the background plus ``threshold_fraction`` of the peak's height above it) in a window around
 it. Thresholding gives the weights compact support, so the centre of a symmetric stripe profile
 is unbiased whatever the window's position relative to it. A column has no stripe when its peak
-is less than ``min_peak_dn`` above the background or when the thresholded profile is wider than
-``max_width_px`` (glare, a blob rather than a line). Written with numpy because OpenCV has no
+is less than ``min_peak_dn`` above the background, when the thresholded profile is wider than
+``max_width_px`` (a blob rather than a line), or near glare: a column with at least
+``glare_min_saturated_px`` saturated pixels (a laser line of this width saturates one or two),
+and ``glare_margin_columns`` on either side of it (the glint's tails). Written with numpy because OpenCV has no
 column-wise sub-pixel peak detector; the background is the median of every 8th pixel of every 8th row.
 """
 
@@ -23,6 +25,9 @@ class StripeSettings:
     threshold_fraction: float = 0.3
     half_window_px: int = 6
     max_width_px: float = 4.0
+    saturated_dn: int = 250
+    glare_min_saturated_px: int = 4
+    glare_margin_columns: int = 20
 
 
 def stripe_centres(images: np.ndarray, settings: StripeSettings = StripeSettings()) -> np.ndarray:
@@ -49,6 +54,15 @@ def stripe_centres(images: np.ndarray, settings: StripeSettings = StripeSettings
     with np.errstate(invalid="ignore", divide="ignore"):
         centre = (w * offs).sum(axis=1) / sw
         width = np.sqrt(np.maximum((w * (offs - centre[:, None, :]) ** 2).sum(axis=1) / sw, 0.0))
-    ok = (height >= settings.min_peak_dn) & (sw > 0) & (width <= settings.max_width_px)
+    ok = (height >= settings.min_peak_dn) & (sw > 0) & (width <= settings.max_width_px) & ~glare_columns(imgs, settings)
     out = np.where(ok, peak_row + centre, np.nan)
     return out[0] if single else out
+
+
+def glare_columns(imgs: np.ndarray, settings: StripeSettings) -> np.ndarray:
+    """Columns (B, W) hit by glare (module docstring), dilated by the margin (``cv2.dilate``)."""
+    sat = (imgs >= settings.saturated_dn).sum(axis=1, dtype=np.int32) >= settings.glare_min_saturated_px
+    if not sat.any():
+        return sat
+    k = np.ones((1, 2 * settings.glare_margin_columns + 1), np.uint8)
+    return cv2.dilate(sat.astype(np.uint8), k) > 0
