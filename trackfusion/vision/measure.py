@@ -272,9 +272,10 @@ def concatenate(parts: list[FrameMeasurements]) -> FrameMeasurements:
 def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, *, batch: int = 64,
                 workers: int = 1, **kwargs) -> FrameMeasurements:
     """:func:`measure_frames` over a whole run in batches of ``batch`` frames (bounded memory),
-    split over ``workers`` forked processes (:func:`trackfusion.workers.run_forked`: the images
+    split over ``workers`` forked processes (:class:`trackfusion.forked.ForkedTasks`: the images
     are read from the parent's memory, only the figures travel back) when that is possible."""
-    from ..workers import can_fork, run_forked
+    from ..forked import ForkedTasks
+    from ..workers import can_fork
 
     check_inputs(units, images, roll_rad)
     F = len(roll_rad)
@@ -287,5 +288,8 @@ def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray,
 
     if workers >= 2 and can_fork(workers) and F >= 2 * batch:
         edges = np.linspace(0, F, workers + 1).astype(int)
-        return concatenate(run_forked(lambda i: part(edges[i], edges[i + 1]), workers))
+        with ForkedTasks(always_fork=True) as tasks:
+            handles = [tasks.submit(f"vision frames {edges[i]}-{edges[i + 1]}", part, edges[i], edges[i + 1])
+                       for i in range(workers)]
+            return concatenate([h.result() for h in handles])
     return part(0, F)
