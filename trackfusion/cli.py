@@ -102,6 +102,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate_vision(args: argparse.Namespace) -> int:
+    from .vision.calibration import calibrate_folder
+
+    for r in calibrate_folder(args.folder, args.out, fit_k3=args.fit_k3):
+        print(f"{r.unit.side}: {r.views} views, reprojection rms {r.reprojection_rms_px:.3f} px, "
+              f"laser plane rms {r.laser_plane_rms_mm:.4f} mm ({r.laser_points} points)")
+    return 0
+
+
 def _progress(message: str) -> None:
     """Progress lines go to stderr so stdout stays machine-readable."""
     print(message, file=sys.stderr, flush=True)
@@ -177,6 +186,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default=None, help="report file (default RUN_DIR/report.html)")
     s.add_argument("--pdf", action="store_true", help="also print it to RUN_DIR/report.pdf (needs chromium)")
     s.set_defaults(func=_cmd_report)
+
+    s = sub.add_parser("calibrate-vision", help="calibrate camera-laser units from calibration sets (docs/vision.md)")
+    s.add_argument("folder", help="a calibration set (calibration_set.yaml) or a folder of them (left/, right/)")
+    s.add_argument("--out", required=True, help="calibration YAML to write")
+    s.add_argument("--fit-k3", action="store_true", help="also fit the k3 distortion term (wide lenses)")
+    s.set_defaults(func=_cmd_calibrate_vision)
 
     s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end")
     s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -55,3 +55,7 @@ def config_error_from_validation(exc, source: str) -> ConfigError:
 
 class ReportError(TrackfusionError):
     """The report cannot be written (missing run files, no browser for the PDF, ...)."""
+
+
+class VisionError(TrackfusionError):
+    """Camera-laser input is invalid (unreadable image, calibration set or file, ...)."""
