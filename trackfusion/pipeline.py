@@ -568,6 +568,8 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
         "rejected_gnss": res.rejected_gnss,
         **info,
     }
+    if res.gnss_noise is not None:  # the GNSS white noise from the residuals (fusion/gnss_noise.py)
+        m["noise_estimates"] = {**m.get("noise_estimates", {}), "gnss": res.gnss_noise.to_json()}
     if res.odometer_scale is not None:
         m["odometer_scale_ppm"] = {"mean": float(res.odometer_scale.mean() * 1e6),
                                    "first": float(res.odometer_scale[0] * 1e6),
