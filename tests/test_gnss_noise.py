@@ -129,3 +129,21 @@ def test_optimistic_receiver_estimated_and_gated_on_the_estimate(runs):
     z_h = np.sqrt(np.mean((err_h / np.column_stack([tab_h[c] for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")]))**2,
                           0))
     np.testing.assert_allclose(z, z_h, rtol=0.25)
+
+
+def test_the_same_estimate_with_exact_time_parts(runs):
+    """``smoother.part_s``: the residuals and the marginals are the one-batch ones, and so are
+    the estimate, the gate and the trajectory (to rounding)."""
+    d, m, tab, _ = runs["optimistic"]
+    cfg = yaml.safe_load((d / "pipeline.yaml").read_text())
+    cfg["smoother"] = {"part_s": 60}
+    path = d / "parts.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    mp = P.run(P.load_pipeline(path), d / "parts").metrics
+    est, est_p = m["noise_estimates"]["gnss"], mp["noise_estimates"]["gnss"]
+    for key in ("variance_factor", "applied_variance_factor", "mean_redundancy"):
+        for g in ("horizontal", "vertical"):
+            assert est_p[key][g] == pytest.approx(est[key][g], rel=1e-6), (key, g)
+    assert [r["index"] for r in mp["rejected_gnss"]] == [r["index"] for r in m["rejected_gnss"]]
+    tab_p = read_csv_table(d / "parts" / "trajectory.csv")
+    np.testing.assert_allclose(tab_p["u_m"], tab["u_m"], atol=1e-8)

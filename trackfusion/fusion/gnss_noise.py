@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 from scipy.stats import chi2
 
@@ -77,23 +78,28 @@ def _fitted_covariance(tree, blocks: LinearBlocks, i: int) -> np.ndarray:
     if len(blocks.keys) == 1:
         return J @ tree.marginalCovariance(key_x) @ J.T
     key_e = int(blocks.keys[1][i])
-    A = tree.joint(key_x, key_e).jacobian()[0]  # columns in key order: E ('e') before X ('x')
+    # QR down the tree: the default Cholesky of the shortcuts meets the stiff graphs' conditioning
+    A = tree.joint(key_x, key_e, gtsam.EliminateQR).jacobian()[0]  # columns in key order: E ('e') before X ('x')
     cov = np.linalg.inv(A.T @ A)
     M = np.concatenate([np.eye(3), J], axis=1) if key_e < key_x else np.concatenate([J, np.eye(3)], axis=1)
     return M @ cov @ M.T
 
 
 def redundancy(tree, blocks: LinearBlocks, cov: np.ndarray, sample: np.ndarray) -> np.ndarray:
-    """Redundancy (S,2) (horizontal, vertical) of the fixes ``sample`` (S,) given their applied
-    white covariances ``cov`` (F,3,3) and the Huber weights of ``blocks`` (module docstring)."""
+    """Redundancy (<=S,2) (horizontal, vertical) of the fixes ``sample`` (S,) given their applied
+    white covariances ``cov`` (F,3,3) and the Huber weights of ``blocks`` (module docstring);
+    a fix whose marginal GTSAM cannot compute is left out."""
     w = blocks.weights()
-    out = np.empty((sample.size, 2))
+    out = np.full((sample.size, 2), np.nan)
     for j, i in enumerate(sample):
-        fit = _fitted_covariance(tree, blocks, int(i))
+        try:
+            fit = _fitted_covariance(tree, blocks, int(i))
+        except RuntimeError:  # GTSAM finds this pair's marginal indeterminate: the other fixes then
+            continue
         c = cov[i]
         out[j, 0] = 1.0 - w[i] * np.trace(np.linalg.solve(c[:2, :2], fit[:2, :2])) / 2.0
         out[j, 1] = 1.0 - w[i] * fit[2, 2] / c[2, 2]
-    return np.clip(out, 0.05, 1.0)
+    return np.clip(out[np.isfinite(out[:, 0])], 0.05, 1.0)
 
 
 @dataclass
@@ -154,6 +160,8 @@ def estimate_white_noise(blocks: LinearBlocks, white_cov: np.ndarray, applied: n
     q = _group_nis(blocks.residual, cov)
     sample = np.unique(np.linspace(0, F - 1, min(REDUNDANCY_SAMPLE, F)).round().astype(np.int64))
     red = redundancy(tree, blocks, cov, sample)
+    if red.shape[0] == 0:
+        return None
     r = red.mean(axis=0)
     factor = applied * _ratio(q, r)
     inside = nis(blocks.residual, scaled_white(white_cov, factor)) <= gate_chi2
@@ -161,7 +169,7 @@ def estimate_white_noise(blocks: LinearBlocks, white_cov: np.ndarray, applied: n
     n = int(inside.sum())
     m = chi2.median(_DOF)
     rel_median = 1.0 / (2.0 * np.sqrt(n) * chi2.pdf(m, _DOF) * m)
-    rel_red = red.std(axis=0, ddof=1) / np.sqrt(sample.size) / r if sample.size > 1 else np.zeros(2)
+    rel_red = red.std(axis=0, ddof=1) / np.sqrt(red.shape[0]) / r if red.shape[0] > 1 else np.zeros(2)
     sigma = factor * np.hypot(rel_median, rel_red)
     use = factor - 1.0 > SIGNIFICANCE * sigma
     stated = np.sqrt(np.mean(np.diagonal(white_cov, axis1=1, axis2=2), axis=0)) * 1e3

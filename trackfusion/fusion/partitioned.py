@@ -269,5 +269,5 @@ class PartMarginals:
     def marginalFactor(self, key: int, function=gtsam.EliminateQR):
         return self.tree(key).marginalFactor(key, function)
 
-    def joint(self, a: int, b: int):
-        return self.tree(a).joint(a, b)
+    def joint(self, a: int, b: int, *function):
+        return self.tree(a).joint(a, b, *function)
