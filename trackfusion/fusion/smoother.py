@@ -13,7 +13,7 @@ factors, numpy linearises ours, GTSAM eliminates (multifrontal Cholesky).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import gtsam
@@ -873,6 +873,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
+        solved_factor = white_factor  # what this round's solve uses
         gnss_build = b.gnss(used, values, white_factor) if gnss is not None and used.size else None
         prism_build = b.prisms(prism_used, values) if prisms is not None else None
         G = _Graph(graph, b.builders, b.counts, gnss_build)
@@ -912,7 +913,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
-    if noise is not None:
+    if noise is not None:  # the factor of the last solve (a refit the rounds ran out for is not applied)
+        noise = replace(noise, applied=solved_factor)
         say(noise.summary())
     state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
