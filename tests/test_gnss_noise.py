@@ -66,6 +66,7 @@ def _run(d, name, estimate=True):
     said = []
     res = P.run(P.load_pipeline(path), d / name, progress=said.append)
     rounds = sum("gating round" in s for s in said)
+    res.metrics["summary"] = P.format_summary(res)
     return res.metrics, read_csv_table(d / name / "trajectory.csv"), rounds
 
 
@@ -113,6 +114,7 @@ def test_optimistic_receiver_estimated_and_gated_on_the_estimate(runs):
     np.testing.assert_allclose(est["stated_white_sigma_mm"][2], np.sqrt(0.25 * 15**2 + 15**2 + 2**2 - 15**2),
                                rtol=1e-6)  # what the receiver said: half its white sigma
     assert est["fixes"] >= 30
+    assert f"from the residuals {est['estimated_white_sigma_mm'][0]:.1f}/" in m["summary"]
     # rejections against the fixes truly outside the gate
     outside, n = _truly_outside(d, 21.1)
     assert outside > 0

@@ -795,6 +795,12 @@ def format_summary(result: RunResult) -> str:
     lines += sensor_summary_lines(m)  # sensors used with defaults, sensors not used
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
+    gnss_noise = m.get("noise_estimates", {}).get("gnss")
+    if gnss_noise:  # fusion/gnss_noise.py
+        st, est = gnss_noise["stated_white_sigma_mm"], gnss_noise["estimated_white_sigma_mm"]
+        lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals {est[0]:.1f}/{est[2]:.1f}"
+                     f" mm (horizontal/vertical; variance factor applied {gnss_noise['applied_variance_factor']['horizontal']:.2f}"
+                     f"/{gnss_noise['applied_variance_factor']['vertical']:.2f})")
     if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
