@@ -249,7 +249,7 @@ class PartitionedSolver:
 
 class PartMarginals:
     """The marginals of a partitioned solve, with the Bayes tree's calls the smoother uses
-    (``marginalCovariance``, ``marginalFactor``, ``joint``): a key's are those of the tree of
+    (``marginalCovariance``, ``marginalFactor``, ``joint`` with an elimination function): a key's are those of the tree of
     its part's factors and the other parts' reduced factors (exact; module docstring)."""
 
     def __init__(self, reduced: list[_Reduced], layout: Layout):
