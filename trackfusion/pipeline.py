@@ -798,9 +798,10 @@ def format_summary(result: RunResult) -> str:
     gnss_noise = m.get("noise_estimates", {}).get("gnss")
     if gnss_noise:  # fusion/gnss_noise.py
         st, est = gnss_noise["stated_white_sigma_mm"], gnss_noise["estimated_white_sigma_mm"]
-        lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals {est[0]:.1f}/{est[2]:.1f}"
-                     f" mm (horizontal/vertical; variance factor applied {gnss_noise['applied_variance_factor']['horizontal']:.2f}"
-                     f"/{gnss_noise['applied_variance_factor']['vertical']:.2f})")
+        applied = gnss_noise["applied_variance_factor"]
+        lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals "
+                     f"{est[0]:.1f}/{est[2]:.1f} mm (horizontal/vertical; variance factor applied "
+                     f"{applied['horizontal']:.2f}/{applied['vertical']:.2f})")
     if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))

@@ -249,8 +249,9 @@ class PartitionedSolver:
 
 class PartMarginals:
     """The marginals of a partitioned solve, with the Bayes tree's calls the smoother uses
-    (``marginalCovariance``, ``marginalFactor``, ``joint`` with an elimination function): a key's are those of the tree of
-    its part's factors and the other parts' reduced factors (exact; module docstring)."""
+    (``marginalCovariance``, ``marginalFactor``, ``joint`` with an elimination function): a
+    key's are those of the tree of its part's factors and the other parts' reduced factors
+    (exact; module docstring)."""
 
     def __init__(self, reduced: list[_Reduced], layout: Layout):
         self._reduced, self._layout = reduced, layout
