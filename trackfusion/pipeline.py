@@ -568,6 +568,8 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
         "rejected_gnss": res.rejected_gnss,
         **info,
     }
+    if res.gnss_noise is not None:  # the GNSS white noise from the residuals (fusion/gnss_noise.py)
+        m["noise_estimates"] = {**m.get("noise_estimates", {}), "gnss": res.gnss_noise.to_json()}
     if res.odometer_scale is not None:
         m["odometer_scale_ppm"] = {"mean": float(res.odometer_scale.mean() * 1e6),
                                    "first": float(res.odometer_scale[0] * 1e6),
@@ -793,6 +795,13 @@ def format_summary(result: RunResult) -> str:
     lines += sensor_summary_lines(m)  # sensors used with defaults, sensors not used
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
+    gnss_noise = m.get("noise_estimates", {}).get("gnss")
+    if gnss_noise:  # fusion/gnss_noise.py
+        st, est = gnss_noise["stated_white_sigma_mm"], gnss_noise["estimated_white_sigma_mm"]
+        applied = gnss_noise["applied_variance_factor"]
+        lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals "
+                     f"{est[0]:.1f}/{est[2]:.1f} mm (horizontal/vertical; variance factor applied "
+                     f"{applied['horizontal']:.2f}/{applied['vertical']:.2f})")
     if m.get("faults"):  # issue 8: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))

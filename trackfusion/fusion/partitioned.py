@@ -249,8 +249,9 @@ class PartitionedSolver:
 
 class PartMarginals:
     """The marginals of a partitioned solve, with the Bayes tree's calls the smoother uses
-    (``marginalCovariance``, ``marginalFactor``, ``joint``): a key's are those of the tree of
-    its part's factors and the other parts' reduced factors (exact; module docstring)."""
+    (``marginalCovariance``, ``marginalFactor``, ``joint`` with an elimination function): a
+    key's are those of the tree of its part's factors and the other parts' reduced factors
+    (exact; module docstring)."""
 
     def __init__(self, reduced: list[_Reduced], layout: Layout):
         self._reduced, self._layout = reduced, layout
@@ -269,5 +270,5 @@ class PartMarginals:
     def marginalFactor(self, key: int, function=gtsam.EliminateQR):
         return self.tree(key).marginalFactor(key, function)
 
-    def joint(self, a: int, b: int):
-        return self.tree(a).joint(a, b)
+    def joint(self, a: int, b: int, *function):
+        return self.tree(a).joint(a, b, *function)

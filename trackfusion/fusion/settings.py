@@ -101,6 +101,11 @@ class GnssFactorSettings(_Factor):
     residual atmosphere) estimated as a state per fix. The white part is the reported
     covariance times ``covariance_scale`` minus the correlated variance, at least
     ``min_sigma_mm``. Set both correlated sigmas to 0 to treat fixes as white.
+
+    ``estimate_white_noise``: the white part's variance factor (horizontal, vertical) is
+    estimated from the residuals after each solve (with at least 30 fixes), applied when
+    significantly above 1, and the gate decided on the estimated noise
+    (fusion/gnss_noise.py, docs/noise_estimation.md).
     """
 
     covariance_scale: float = Field(1.0, gt=0)
@@ -111,6 +116,7 @@ class GnssFactorSettings(_Factor):
     huber_k: float = Field(2.0, gt=0)
     gate_chi2: float = Field(21.1, gt=0)
     accept_float: bool = True
+    estimate_white_noise: bool = True
 
 
 class InclinometerFactorSettings(_Factor):

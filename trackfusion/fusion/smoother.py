@@ -13,7 +13,7 @@ factors, numpy linearises ours, GTSAM eliminates (multifrontal Cholesky).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import gtsam
@@ -24,6 +24,7 @@ from .. import geodesy
 from ..errors import FusionError
 from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
+from . import gnss_noise
 from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .preintegration import preintegrate
@@ -72,6 +73,7 @@ class SmootherResult:
     rejected_prism: list[dict] = field(default_factory=list)  # [{"station", "t_s", "reason", "nis"}]
     hand_over: "HandOver | None" = None  # the state at ``hand_over_t_s`` (fusion/chunks.py)
     station_cov: np.ndarray | None = None  # (8J,8J) joint marginal covariance of station_states (estimated ones)
+    gnss_noise: "gnss_noise.GnssNoiseEstimate | None" = None  # the GNSS white noise from the residuals
 
 
 @dataclass
@@ -292,17 +294,25 @@ class _Builder:
         self._count("zupt_velocity", ks.size)
         self._count("zupt_rate", pairs.size)
 
-    def gnss(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
-        """Factors of the used fixes (indices into the GNSS data); with a correlated-error model,
-        one error state ``E(i)`` per used fix ``i`` (inserted into / kept in ``values``) joined by
-        first-order Gauss-Markov steps. Returns the builder of the position factors (for gating)."""
+    def gnss_white(self, used: np.ndarray) -> np.ndarray:
+        """The stated white covariances (F,3,3) [m^2] of the used fixes (:func:`white_covariance`)."""
+        g, st = self.pb.gnss, self.pb.factors.gnss
+        corr = np.array([st.correlated_sigma_h_mm] * 2 + [st.correlated_sigma_v_mm]) * 1e-3
+        return white_covariance(g.cov_n[used] * st.covariance_scale, corr, st.min_sigma_mm * 1e-3)
+
+    def gnss(self, used: np.ndarray, values: gtsam.Values, white_factor: np.ndarray
+             ) -> Callable[["_State"], fx.LinearBlocks]:
+        """Factors of the used fixes (indices into the GNSS data), their stated white covariance
+        scaled by ``white_factor`` (horizontal, vertical; fusion/gnss_noise.py); with a
+        correlated-error model, one error state ``E(i)`` per used fix ``i`` (inserted into / kept
+        in ``values``) joined by first-order Gauss-Markov steps. Returns the builder of the
+        position factors (for gating)."""
         g, st = self.pb.gnss, self.pb.factors.gnss
         kk = nearest_sample(self.t, g.t_s[used])
         # move each fix to its keyframe's time along the initial velocity (< half an IMU interval)
         fix = g.pos_n[used] - self.vel0[kk] * (g.t_s[used] - self.t[kk])[:, None]
         corr = np.array([st.correlated_sigma_h_mm] * 2 + [st.correlated_sigma_v_mm]) * 1e-3
-        W = np.linalg.inv(np.linalg.cholesky(white_covariance(g.cov_n[used] * st.covariance_scale, corr,
-                                                              st.min_sigma_mm * 1e-3)))
+        W = np.linalg.inv(np.linalg.cholesky(gnss_noise.scaled_white(self.gnss_white(used), white_factor)))
         keys_x, keys_e = X(0) + kk, E(0) + used
         ones = np.ones((used.size, 3))
         with_error = bool(np.any(corr > 0))
@@ -594,11 +604,6 @@ def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigm
     return vec @ (lam[:, :, None] * np.swapaxes(vec, -1, -2))
 
 
-def _gnss_nis(G: _Graph, state: _State) -> np.ndarray:
-    """Normalised squared residual of each used GNSS fix (3 degrees of freedom, white noise)."""
-    return np.sum(G.gnss(state).whitened() ** 2, axis=1)
-
-
 def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
     """Marginal covariance of one variable: GTSAM's (Cholesky down the tree); when that meets
     the conditioning limit of :func:`_eliminate`, by QR: the marginal is then a conditional
@@ -864,10 +869,12 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     rtol = problem.smoother.relative_tolerance
     step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
     partition = _partition(problem, t_key, bias_seg, seg)
+    white_factor, noise = np.ones(2), None  # the GNSS white-noise variance factors applied, their estimate
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
-        gnss_build = b.gnss(used, values) if gnss is not None and used.size else None
+        solved_factor = white_factor  # what this round's solve uses
+        gnss_build = b.gnss(used, values, white_factor) if gnss is not None and used.size else None
         prism_build = b.prisms(prism_used, values) if prisms is not None else None
         G = _Graph(graph, b.builders, b.counts, gnss_build)
         say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
@@ -885,7 +892,13 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             rejected_prism += newly
             newly_rejected = bool(newly)
         if gnss_build is not None:
-            nis = _gnss_nis(G, sol.state)
+            blocks = gnss_build(sol.state)
+            if fs.gnss.estimate_white_noise:  # the gate on the noise the residuals show
+                noise = gnss_noise.estimate_white_noise(blocks, b.gnss_white(used), white_factor, sol.tree,
+                                                        fs.gnss.gate_chi2) or noise
+                if noise is not None and gnss_noise.needs_refit(white_factor, noise.applied):
+                    white_factor, newly_rejected = noise.applied, True
+            nis = gnss_noise.nis(blocks.residual, gnss_noise.scaled_white(b.gnss_white(used), white_factor))
             bad = nis > fs.gnss.gate_chi2
             for i, q in zip(used[bad], nis[bad]):
                 rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
@@ -900,6 +913,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
+    if noise is not None:  # the factor of the last solve (a refit the rounds ran out for is not applied)
+        noise = replace(noise, applied=solved_factor)
+        say(noise.summary())
     state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     if on_solved is not None:
@@ -924,7 +940,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_states=_station_states(prisms, state),
                           station_cov=_station_covariance(prisms, sol.tree),
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
-                          hand_over=hand_over)
+                          hand_over=hand_over, gnss_noise=noise)
 
 
 def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None

@@ -180,7 +180,9 @@ class GnssSpec(_Spec):
     extra Gauss-Markov error ``float_sigma_*_mm`` with ``float_tau_s``, covariance inflated to
     match); ``outlier_fraction`` of the fixes displaced by ``outlier_min_m``..``outlier_max_m``
     in a random 3-D direction with the reported covariance unchanged (multipath); ``outages``
-    (no fixes).
+    (no fixes). ``stated_sigma_factor``: the receiver reports this times its true white sigma
+    in its covariance (real receivers' stated accuracy is optimistic: 0.5 reports half; 1, an
+    honest receiver, the default); the error drawn is the same.
     """
 
     rate_hz: float = Field(1.0, gt=0)
@@ -199,6 +201,7 @@ class GnssSpec(_Spec):
     outlier_min_m: float = Field(0.3, ge=0)
     outlier_max_m: float = Field(3.0, ge=0)
     outages: list[Interval] = []
+    stated_sigma_factor: float = Field(1.0, gt=0)
 
     @model_validator(mode="after")
     def _outlier_range(self) -> "GnssSpec":
@@ -227,7 +230,8 @@ def simulate_gnss(t_s: np.ndarray, antenna_pos_n: np.ndarray, origin: geodesy.Or
     Epochs inside an outage are dropped (also when ideal). Latitude, longitude and ellipsoidal
     height come from the erroneous position through :func:`geodesy.n_to_geodetic`; the reported
     covariance is diagonal ENU (at the antenna; the ENU/n rotation, < 1e-4 rad over 500 m, is
-    neglected): white^2 + GM^2, plus float^2 in float episodes, unchanged for outliers.
+    neglected): (stated_sigma_factor white)^2 + GM^2, plus float^2 in float episodes, unchanged
+    for outliers.
     Drawn (kept fixes): ``error_n_m`` (K, 3), ``outlier_times_s``, ``outlier_offsets_n_m``,
     ``float_times_s``, ``error_n_m_rms``.
     """
@@ -253,7 +257,7 @@ def simulate_gnss(t_s: np.ndarray, antenna_pos_n: np.ndarray, origin: geodesy.Or
                         0.0)
         err += jump
     lat, lon, h = geodesy.n_to_geodetic(truth[keep] + err[keep], origin)
-    var = sig_w**2 + sig_gm**2 + np.where(is_float[:, None], sig_f**2, 0.0)
+    var = (spec.stated_sigma_factor * sig_w)**2 + sig_gm**2 + np.where(is_float[:, None], sig_f**2, 0.0)
     cov = np.zeros((int(keep.sum()), 3, 3))
     cov[:, [0, 1, 2], [0, 1, 2]] = var[keep]
     quality = np.where(is_float, 5, 4)[keep].astype(np.int64)
