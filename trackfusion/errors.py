@@ -55,3 +55,8 @@ def config_error_from_validation(exc, source: str) -> ConfigError:
 
 class ReportError(TrackfusionError):
     """The report cannot be written (missing run files, no browser for the PDF, ...)."""
+
+
+class OutputError(TrackfusionError):
+    """An output folder or file cannot or must not be written (a file where a folder is meant,
+    not writable, holding files trackfusion did not write, locked by another run, ...)."""

@@ -1025,7 +1025,7 @@ def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
     if scan.problem is not None and not allow_truncated:
         where = f" at byte {scan.problem.at}" if scan.problem.at >= 0 else ""
         raise SensorDataError(f"{path}: truncated or corrupt MCAP{where} ({scan.problem.reason}); "
-                              f"{scan.readable()} before it; read_log(..., allow_truncated=True) returns them")
+                              f"{scan.readable()} before it; set inputs.allow_truncated: true in the pipeline YAML to run on them")
 
 
 # =================================================================================================

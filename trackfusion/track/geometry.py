@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import ConfigError, EvaluationError, TrackGeometryError, config_error_from_validation
@@ -101,10 +100,11 @@ def load_tolerances(name_or_path: str, base_dir: Path | None = None) -> tuple[st
         known = sorted(q.name[:-5] for q in (resources.files("trackfusion") / "data" / "tolerances").iterdir()
                        if q.name.endswith(".yaml"))
         raise ConfigError(f"geometry.tolerances: {source} not found (package tables: {', '.join(known)})")
+    from ..yamlio import parse_yaml
+    data = parse_yaml(text, source)
     try:
-        data = yaml.safe_load(text)
         checks = [ToleranceCheck(**c) for c in data["checks"]]
-    except (yaml.YAMLError, KeyError, TypeError) as exc:
+    except (KeyError, TypeError) as exc:
         raise ConfigError(f"{source}: invalid tolerance table ({exc})") from None
     for c in checks:
         if c.kind not in ("limit", "chord_indicator"):
@@ -342,6 +342,7 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
         "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
         "tolerance_table": tolerances[0] if tolerances else None,
+        "checks": [c.name for c in checks],
         "exceedances": exceedances,
         "skipped_checks": skipped,
     }
@@ -400,10 +401,8 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
 def load_design(path: Path) -> DesignAlignment:
     """A design alignment from a YAML file holding an ``alignment:`` section (a scenario YAML
     works) or the alignment mapping itself."""
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: unreadable design alignment ({str(exc).splitlines()[0]})") from None
+    from ..yamlio import load_yaml
+    data = load_yaml(path, "design alignment")
     if isinstance(data, dict) and "alignment" in data:
         data = data["alignment"]
     if not isinstance(data, dict):
