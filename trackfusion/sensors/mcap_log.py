@@ -154,24 +154,25 @@ def _format(schema: str, columns: list[list]) -> list[str]:
     return list(map(schemas.CANONICAL[schema].template.__mod__, zip(*columns)))
 
 
-def _streams(log: SensorLog) -> list[_Stream]:
-    """Every sensor present, in channel order, checked and formatted."""
+def _streams(log: SensorLog, offset_ns: int = 0) -> list[_Stream]:
+    """Every sensor present, in channel order, checked and formatted; ``offset_ns`` is added to every
+    log_time (and to the payloads' timestamps): ``fused.mcap`` on the survey's absolute clock."""
     out: list[_Stream] = []
     if log.imu is not None:
         d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
         out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
     if log.odometer is not None:
         d, topic = log.odometer, "/odometer"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
         if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
             raise _fail(topic, "ticks must be integers")
         out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
     if log.gnss is not None:
         d, topic = log.gnss, "/gnss"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         n = ns.size
         cols = [(ns // 10**9).tolist(), (ns % 10**9).tolist()] + _columns(topic, n, [
             ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
@@ -182,7 +183,7 @@ def _streams(log: SensorLog) -> list[_Stream]:
         topic = schemas.TOTAL_STATION_PREFIX + sid
         if not sid or "/" in sid:
             raise _fail(topic, "station id must be a non-empty name without '/'")
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
                                          ("zenith_angle_rad", d.zenith_angle_rad, ()),
                                          ("slope_distance_m", d.slope_distance_m, ())])
@@ -193,12 +194,12 @@ def _streams(log: SensorLog) -> list[_Stream]:
         out.append(_Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols)))
     if log.inclinometer is not None:
         d, topic = log.inclinometer, "/inclinometer"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())])
         out.append(_Stream(topic, schemas.INCLINATION, ns, _format(schemas.INCLINATION, cols)))
     if log.gauge is not None:
         d, topic = log.gauge, "/gauge"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("gauge_m", d.gauge_m, ())])
         out.append(_Stream(topic, schemas.GAUGE, ns, _format(schemas.GAUGE, cols)))
     return out
@@ -421,14 +422,16 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
                     for i, (sid, t, e, m) in sorted((source.channels if source else {}).items())]
     next_schema = max((r.id for r in schema_recs), default=0) + 1
     first_channel = max((r.id for r in channel_recs), default=0) + 1
-    schema_ids: dict[tuple[str, bytes], int] = {}
+    # one schema record per name: a stream whose schema name the file has already (the source's, or
+    # an earlier stream's) uses that record, so that a viewer never meets two schemas of one name
+    schema_ids: dict[str, int] = {r.name: r.id for r in schema_recs}
     for i, s in enumerate(streams):
-        data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
-        if (s.schema, data) not in schema_ids:
-            schema_ids[(s.schema, data)] = next_schema + len(schema_ids)
-            schema_recs.append(Schema(id=schema_ids[(s.schema, data)], name=s.schema, encoding="jsonschema",
-                                      data=data))
-        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[(s.schema, data)], topic=s.topic,
+        if s.schema not in schema_ids:
+            data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
+            schema_ids[s.schema] = next_schema
+            next_schema += 1
+            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema", data=data))
+        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
                                     message_encoding="json", metadata={}))
     for rec in schema_recs + channel_recs:
         out.put(_record(rec))
@@ -468,7 +471,7 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
     out.put(MAGIC, in_crc=False)
 
 
-def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = ()) -> None:
+def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = (), time_offset_ns: int = 0) -> None:
     """Write ``log`` to ``path`` as an MCAP raw log (docs/log_format.md).
 
     Every sensor present (not None; total stations by id) becomes one channel; messages of
@@ -479,9 +482,11 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     identical input (no wall-clock time). Raises :class:`SensorDataError` for data the reader
     would refuse (non-finite values, times not strictly increasing, wrong shapes).
     ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
-    :func:`read_log` accepts; ``fused.mcap`` is written this way).
+    :func:`read_log` accepts; ``fused.mcap`` is written this way); ``time_offset_ns`` [ns] is
+    added to the sensors' log_time (``fused.mcap`` on the survey's absolute clock; the extra
+    channels carry their own times).
     """
-    streams = _streams(log) + _extra_streams(extra)
+    streams = _streams(log, int(time_offset_ns)) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)

@@ -313,11 +313,15 @@ def _simulate_aiding(specs: dict, kin: TrolleyKinematics, track: TrackModel, mot
                                                           rngs["gauge"], ideal)
 
 
+#: UTC time at which a simulated survey's IMU clock reads 0 (``survey.epoch_utc``: fused.mcap's absolute clock)
+SIMULATED_EPOCH_UTC = "2024-06-03T08:00:00Z"
+
+
 def _log_metadata(cfg: ScenarioConfig, spec: ImuSpec, lever_arms: dict, drawn: dict) -> dict[str, Any]:
     """Run metadata for the log: survey description, sensor specifications, lever arms, station set-ups."""
     meta: dict[str, Any] = {
         "survey": {"scenario": cfg.name, "description": cfg.description, "simulated": True,
-                   "origin": cfg.origin.model_dump()},
+                   "origin": cfg.origin.model_dump(), "epoch_utc": SIMULATED_EPOCH_UTC},
         "sensors": {"imu": spec.model_dump(), "odometer": cfg.odometer, "gnss": cfg.gnss,
                     "inclinometer": cfg.inclinometer, "gauge": cfg.gauge},
         "lever_arms": {"lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
