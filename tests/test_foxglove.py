@@ -96,7 +96,7 @@ def test_every_foxglove_message_parses_strictly_into_the_official_schema(fused):
         json_format.ParseDict(_to_proto_json(doc, cls.DESCRIPTOR), cls())  # raises on an unknown field or bad type
         seen.add((channel.topic, schema.name))
     assert seen == {("/gnss", "foxglove.LocationFix"), ("/trajectory/pose", "foxglove.PoseInFrame"),
-                    ("/trajectory/fix", "foxglove.LocationFix"), ("/tf", "foxglove.FrameTransform"),
+                    ("/trajectory/fix", "foxglove.LocationFix"), ("/trajectory/tf", "foxglove.FrameTransform"),
                     ("/trajectory/path", "foxglove.SceneUpdate"), ("/track/rails", "foxglove.SceneUpdate"),
                     ("/track/rails_geojson", "foxglove.GeoJSON")}
 
@@ -127,7 +127,7 @@ def test_times_are_absolute_from_the_logs_epoch(fused):
 
 def test_frame_transform_is_n_to_b_at_the_poses(fused):
     _summary, msgs = _read(fused[0])
-    tf = [(m.log_time, json.loads(m.data)) for _s, c, m in msgs if c.topic == "/tf"]
+    tf = [(m.log_time, json.loads(m.data)) for _s, c, m in msgs if c.topic == "/trajectory/tf"]
     poses = [(m.log_time, json.loads(m.data)) for _s, c, m in msgs if c.topic == "/trajectory/pose"]
     assert len(tf) == len(poses) > 10
     for (t1, a), (t2, p) in zip(tf, poses):

@@ -15,7 +15,7 @@ from trackfusion.sensors.mcap_log import _scan_file, copy_log, read_log, write_l
 from test_mcap_log import small_log
 
 ORIGIN = Origin(22.9, 112.9, 20.0)
-EXTRA_TOPICS = {"/trajectory/pose", "/trajectory/fix", "/trajectory/path"}
+EXTRA_TOPICS = {"/trajectory/pose", "/trajectory/fix", "/trajectory/tf", "/trajectory/path"}
 
 
 def _table(n=300):
@@ -119,11 +119,14 @@ def test_pose_and_fix_payloads_are_the_json_of_their_messages():
     n = 500
     ns = np.sort(rng.integers(0, 10**13, n))
     pos, q, var, llh = (rng.normal(size=(n, k)) * 10.0 ** rng.integers(-12, 8, (n, k)) for k in (3, 4, 3, 3))
-    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, llh)
+    poses, fixes, transforms = _pose_and_fix_payloads(ns, pos, q, var, llh)
     for k in range(n):
         stamp = _stamp(int(ns[k]))
         assert poses[k] == _dumps({"timestamp": stamp, "frame_id": "n", "pose": {
             "position": dict(zip("xyz", pos[k].tolist())), "orientation": dict(zip("xyzw", q[k].tolist()))}})
+        assert transforms[k] == _dumps({"timestamp": stamp, "parent_frame_id": "n", "child_frame_id": "b",
+                                        "translation": dict(zip("xyz", pos[k].tolist())),
+                                        "rotation": dict(zip("xyzw", q[k].tolist()))})
         v = var[k].tolist()
         assert fixes[k] == _dumps({"timestamp": stamp, "frame_id": "n", "latitude": llh[k, 0], "longitude": llh[k, 1],
                                    "altitude": llh[k, 2], "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0,

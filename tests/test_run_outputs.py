@@ -180,7 +180,7 @@ def test_fused_mcap_holds_the_trajectory_and_copies_the_raw_topics(run_dir):
             continue
         assert fused[topic] == moved, topic  # schema, encoding and bytes identical, log_time + the epoch
     assert set(fused) == set(raw) | {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
-                                     "/track/rails_geojson", "/tf"}  # the run writes geometry.csv, so rails too
+                                     "/track/rails_geojson", "/trajectory/tf"}  # the run writes geometry.csv, so rails too
     poses, fixes = fused["/trajectory/pose"], fused["/trajectory/fix"]
     assert {p[:2] for p in poses} == {("foxglove.PoseInFrame", "json")}
     assert {f[:2] for f in fixes} == {("foxglove.LocationFix", "json")}
@@ -208,7 +208,7 @@ def test_fused_mcap_draws_the_rails_of_geometry_csv(run_dir, full_dir, tmp_path)
     geometry = read_csv_table(full_dir / "geometry.csv")
     write_fused_mcap(tmp_path / "f.mcap", traj, Origin(42.86, 90.17, 60.0), geometry=geometry)
     msgs = _messages(tmp_path / "f.mcap")
-    assert set(msgs) == {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
+    assert set(msgs) == {"/trajectory/pose", "/trajectory/fix", "/trajectory/tf", "/trajectory/path", "/track/rails",
                          "/track/rails_geojson"}
     (name, enc, t_ns, data), = msgs["/track/rails"]
     assert name == "foxglove.SceneUpdate" and t_ns == msgs["/trajectory/pose"][0][2]

@@ -59,6 +59,7 @@ def verdict_line(metrics: dict[str, Any]) -> str:
         why = "; ".join(text for _ok, text in parts) or "no reference and no tolerance table"
         return f"no verdict: {why}"
     word = "MEETS" if all(ok for ok, _t in given) else "FAILS"
-    return f"verdict: the survey {word} " + "; ".join(
-        ("" if ok is None else ("meets " if ok else "fails ")) + text if len(parts) > 1 else text
-        for ok, text in parts)
+    if len(parts) == 1:
+        return f"verdict: the survey {word} {parts[0][1]}"
+    said = {True: "meets ", False: "fails ", None: ""}
+    return f"verdict: the survey {word}: " + "; ".join(said[ok] + text for ok, text in parts)

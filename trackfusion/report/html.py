@@ -244,11 +244,12 @@ def geometry_section(run: RunFiles) -> str:
     exceedances = gm.get("exceedances", [])
     s = g["chainage_m"]
     parts = []
-    irr = {c: g[c] for c in IRREGULARITY_COLUMNS if c in g}
+    unmeasured: list[str] = []
+    irr = _measured({c: g[c] for c in IRREGULARITY_COLUMNS if c in g}, unmeasured)
     if irr:
         parts.append(_run_img(run, "irregularities", lambda: figures.series_with_bands(
             s, irr, limits, "irregularities (mm)", exceedances)))
-    versines = {c: g[c] for c in g if _VERSINE.match(c)}
+    versines = _measured({c: g[c] for c in g if _VERSINE.match(c)}, unmeasured)
     if versines:
         parts.append(_run_img(run, "versines", lambda: figures.series_with_bands(
             s, versines, limits, "chord versines (mm)", exceedances)))
@@ -256,6 +257,11 @@ def geometry_section(run: RunFiles) -> str:
     if "gauge_m" in g:
         nominal = float((run.geometry_meta or {}).get("nominal_gauge_m", NOMINAL_GAUGE_M))
         level[f"gauge_minus_{nominal * 1e3:g}_mm"] = (g["gauge_m"] - nominal) * 1e3
+    level = _measured(level, unmeasured)
+    if unmeasured:  # said, not drawn: an empty or copied curve would look like data
+        why = sorted(set((gm.get("not_measured") or {}).values())) or ["no finite value"]
+        parts.append(f"<p class=\"not-measured\">Not measured ({_e('; '.join(why))}): "
+                     f"{_e(', '.join(sorted(set(unmeasured))))}.</p>")
     if level:
         parts.append(_run_img(run, "cross-level", lambda: figures.series_with_bands(
             s, level, limits, "cross-level, twist and gauge (mm)", exceedances)))
@@ -269,6 +275,17 @@ def geometry_section(run: RunFiles) -> str:
     else:
         parts.append("<p>No tolerance exceedance.</p>")
     return _section("geometry", "Track geometry", "".join(parts))
+
+
+def _measured(columns: dict[str, np.ndarray], unmeasured: list[str]) -> dict[str, np.ndarray]:
+    """The columns holding any finite value; the names of the others are appended to ``unmeasured``."""
+    kept = {}
+    for name, values in columns.items():
+        if np.isfinite(np.asarray(values, dtype=float)).any():
+            kept[name] = values
+        else:
+            unmeasured.append(name)
+    return kept
 
 
 def time_sync_section(m: dict) -> str:

@@ -6,7 +6,7 @@ Topics (JSON encoding, Foxglove schema names; frame ``n`` is ENU at the survey o
   orientation ``R_nb`` as a quaternion, at most ``max_rate_hz``;
 - ``/trajectory/fix`` ``foxglove.LocationFix``: WGS-84 latitude, longitude, ellipsoidal height
   and the diagonal ENU position covariance (type 2, diagonal known), same times (Map panel);
-- ``/tf`` ``foxglove.FrameTransform``: ``n`` -> ``b`` (translation: the IMU origin in ``n``;
+- ``/trajectory/tf`` ``foxglove.FrameTransform``: ``n`` -> ``b`` (translation: the IMU origin in ``n``;
   rotation: ``R_nb``), same times, so that the 3-D panel can follow the trolley (display frame ``b``);
 - ``/trajectory/path`` ``foxglove.SceneUpdate``: the whole trajectory as one line (3-D panel);
 - with geometry (``geometry.csv`` columns): ``/track/rails`` ``foxglove.SceneUpdate`` with the
@@ -178,7 +178,7 @@ def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, ma
                                                    PATH_RGBA, 2.0)], {"what": "smoothed IMU origin path"})
     return [ExtraChannel("/trajectory/pose", "foxglove.PoseInFrame", _schema(POSE_IN_FRAME_SCHEMA), ns, poses),
             ExtraChannel("/trajectory/fix", schemas.LOCATION_FIX, schemas.schema_bytes(schemas.LOCATION_FIX), ns, fixes),
-            ExtraChannel("/tf", "foxglove.FrameTransform", _schema(FRAME_TRANSFORM_SCHEMA), ns, transforms),
+            ExtraChannel("/trajectory/tf", "foxglove.FrameTransform", _schema(FRAME_TRANSFORM_SCHEMA), ns, transforms),
             ExtraChannel("/trajectory/path", "foxglove.SceneUpdate", _schema(SCENE_UPDATE_SCHEMA), t0, [path])]
 
 

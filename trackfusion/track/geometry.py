@@ -146,6 +146,7 @@ class GeometryResult:
                                "edge) in n and the quantities derived from them (docs/geometry.md)",
                 "chainage": self.metrics["chainage"], "irregularity_reference": self.metrics["irregularity_reference"],
                 "gauge": self.metrics["gauge"], "passes": self.metrics["passes"],
+                "not_measured": self.metrics.get("not_measured", {}),
                 "sign_conventions": {"cross_level_mm": "left rail height minus right rail height",
                                      "vertical": "positive up", "lateral": "positive to the left of increasing chainage",
                                      "twist": "cross_level(s + B/2) - cross_level(s - B/2)"}}
@@ -223,14 +224,33 @@ def _mean_over_passes(tables: list[dict[str, np.ndarray]], step_m: float) -> dic
     return {k: v[covered] for k, v in out.items()}
 
 
-def _limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck) -> list[dict]:
+#: why a column is not measured without a gauge sensor
+NO_GAUGE = ("no gauge sensor: the other rail's lateral position is the reference rail's plus the nominal gauge, "
+            "so its lateral irregularities and versines and the gauge would be copies, not measurements")
+
+
+def not_measured_without_gauge(table: dict[str, np.ndarray], other_rail: str) -> dict[str, str]:
+    """The columns of a geometry table a survey without a gauge sensor does not measure, with why:
+    the gauge and its variation, and every lateral quantity of the rail opposite the reference
+    rail (``other_rail``). Its vertical quantities are measured (the trolley's cross-level)."""
+    return {c: NO_GAUGE for c in table
+            if c in ("gauge_m", "gauge_variation_mm") or c.startswith(f"{other_rail}_lateral")}
+
+
+def _check_columns(check: ToleranceCheck) -> list[str]:
+    """The geometry.csv columns a limit check reads (none for a chord-indicator check)."""
+    if check.kind != "limit":
+        return []
     L = fmt_length(check.length_m) if check.length_m is not None else ""
-    names = {"vertical_versine": [f"{r}_vertical_versine_{L}m_mm" for r in RAILS],
-             "lateral_versine": [f"{r}_lateral_versine_{L}m_mm" for r in RAILS],
-             "twist": [f"twist_{L}m_mm"], "cross_level": ["cross_level_mm"],
-             "gauge_variation": ["gauge_variation_mm"]}[check.quantity]
+    return {"vertical_versine": [f"{r}_vertical_versine_{L}m_mm" for r in RAILS],
+            "lateral_versine": [f"{r}_lateral_versine_{L}m_mm" for r in RAILS],
+            "twist": [f"twist_{L}m_mm"], "cross_level": ["cross_level_mm"],
+            "gauge_variation": ["gauge_variation_mm"]}[check.quantity]
+
+
+def _limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck) -> list[dict]:
     out = []
-    for col in names:
+    for col in _check_columns(check):
         out += _stretches(table["chainage_m"], table[col], check.limit_mm, f"{check.name}:{col}")
     return out
 
@@ -304,8 +324,13 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         used.append(tr)
         design_s_all.append(ds)
     table = _mean_over_passes(tables, step_m)
+    has_gauge = gauge_t_s is not None and gauge_t_s.size >= 2
+    not_measured = {} if has_gauge else not_measured_without_gauge(table, trolley.other_rail)
+    for t in tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
+        t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
     exceedances: list[dict] = []
-    skipped: list[dict] = []
+    skipped: list[dict] = [{"check": f"{c.name}:{col}", "reason": f"{col} not measured: {not_measured[col]}"}
+                           for c in checks for col in _check_columns(c) if col in not_measured]
     for c in checks:
         if c.kind == "limit":
             exceedances += _limit_exceedances(table, c)
@@ -316,7 +341,11 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         else:
             exceedances += [dict(e, pass_index=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
                             if np.ptp(tr.chainage_m) >= c.chord_m
-                            for e in _indicator_exceedances(tr, design_track, ds, c)]
+                            for e in _indicator_exceedances(tr, design_track, ds, c)
+                            if not (not_measured and e["check"] == f"{c.name}:{trolley.other_rail}_lateral")]
+            if not_measured:
+                skipped.append({"check": f"{c.name}:{trolley.other_rail}_lateral",
+                                "reason": f"{trolley.other_rail} rail lateral not measured: {NO_GAUGE}"})
     di_series, di_defects = [], []
     if pitch_rate_radps is not None and cfg.deformation_index.enabled:
         dcfg = cfg.deformation_index
@@ -341,6 +370,7 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
         "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
+        "not_measured": not_measured,
         "tolerance_table": tolerances[0] if tolerances else None,
         "checks": [c.name for c in checks],
         "exceedances": exceedances,
@@ -389,6 +419,9 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
             for comp in ("vertical", "lateral"):
                 col = f"{side}_{comp}_versine_{fmt_length(chord)}m_mm"
                 rows = np.vstack([t[col][(i >= k0) & (i <= k1)] for t, i in zip(tables, idx)])
+                if not np.isfinite(rows).any():  # a column the sensors do not measure (not_measured_without_gauge)
+                    out[col] = {"not_measured": True}
+                    continue
                 try:
                     r = repeatability(rows / 1e3, limit, step_m * np.arange(k0, k1 + 1))
                 except EvaluationError as exc:  # reported, not raised: passes may share no point
