@@ -245,6 +245,9 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> t
             f"part ({readable}) because inputs.allow_truncated is set")
     if log.imu is None or log.imu.t_s.size < 2:
         raise FusionError(f"{path}: the log has no /imu records" + (" before the damage" if damage else ""))
+    if cfg.outputs.fused_mcap:  # fused.mcap's clock: a bad survey.epoch_utc refused before the computing
+        from .sensors.fused import survey_epoch_ns
+        survey_epoch_ns(log.metadata, str(path))
     return log, damage
 
 

@@ -91,10 +91,10 @@ class Progress:
         stage = stage_of(message)
         if stage is None:
             return
-        if stage != self._current and self._current in self._tasks:  # the previous stage is done
+        if stage != self._current and self._current in self._tasks:
             task = self._tasks[self._current]
-            bars.update(task, total=bars.tasks[task].total or 1, completed=bars.tasks[task].total or 1)
-            bars.stop_task(task)
+            if bars.tasks[task].total is None:  # an uncounted stage is done when another starts (a counted
+                bars.update(task, total=1, completed=1)  # one, e.g. chunks, keeps its count: it may go on)
         self._current = stage
         if stage not in self._tasks:
             self._tasks[stage] = bars.add_task(stage, total=None, count="")

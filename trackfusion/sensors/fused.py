@@ -225,11 +225,12 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
         write_log(path, raw if raw is not None else SensorLog(), extra, time_offset_ns=epoch_ns)
 
 
-def survey_epoch_ns(metadata: dict) -> int:
+def survey_epoch_ns(metadata: dict, source: str = "log") -> int:
     """The survey's epoch [ns since 1970-01-01 UTC]: the UTC time at which the IMU clock reads 0,
     from the log's ``survey`` metadata record, key ``epoch_utc`` (ISO 8601, e.g.
     ``2024-05-14T07:30:00Z``; docs/log_format.md); 0 (times stay on the IMU clock) when the log
-    does not say. Raises :class:`~trackfusion.errors.SensorDataError` for an unreadable value."""
+    does not say. Raises :class:`~trackfusion.errors.SensorDataError` naming ``source`` (the log
+    file) for an unreadable value."""
     from datetime import datetime, timezone
     from ..errors import SensorDataError
     survey = metadata.get("survey") if isinstance(metadata, dict) else None
@@ -239,11 +240,11 @@ def survey_epoch_ns(metadata: dict) -> int:
     try:
         when = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
     except ValueError:
-        raise SensorDataError(f"log metadata survey.epoch_utc: {text!r} is not an ISO 8601 time") from None
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} is not an ISO 8601 time") from None
     if when.tzinfo is None:
-        raise SensorDataError(f"log metadata survey.epoch_utc: {text!r} has no time zone (write it in UTC, ...Z)")
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} has no time zone (write it in UTC, ...Z)")
     delta = when.astimezone(timezone.utc) - datetime(1970, 1, 1, tzinfo=timezone.utc)
     ns = (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
     if not 0 <= ns < 9 * 10**18:
-        raise SensorDataError(f"log metadata survey.epoch_utc: {text!r} is outside 1970..2255")
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} is outside 1970..2255")
     return ns

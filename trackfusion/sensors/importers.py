@@ -355,6 +355,8 @@ def import_log(mapping_path: str | Path) -> SensorLog:
         log.metadata = read_json(base / m.metadata)
     if m.survey is not None:
         log.metadata["survey"] = {**log.metadata.get("survey", {}), **m.survey}
+    from .fused import survey_epoch_ns
+    survey_epoch_ns(log.metadata, str(mapping_path))  # a bad survey.epoch_utc refused here, not at a run's end
     if m.imu is not None:
         log.imu = _imu(base, m.imu)
     if m.odometer is not None:
