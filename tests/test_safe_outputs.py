@@ -258,3 +258,13 @@ def test_output_file_records_itself_in_the_folder_manifest(tmp_path):
         path.write_text("{}")
     assert json.loads((tmp_path / MANIFEST).read_text())["files"] == ["x.json"]
     OutputFile(tmp_path / "x.json").check()  # ours now: no --force needed
+
+
+def test_a_failed_command_removes_every_folder_it_created(tmp_path):
+    folder = OutputFolder(tmp_path / "a" / "b" / "c")
+    with pytest.raises(RuntimeError):
+        with folder.locked():
+            with folder.staging() as stage:
+                (stage / "x.csv").write_text("1\n")
+                raise RuntimeError("fails while writing")
+    assert list(tmp_path.iterdir()) == []

@@ -168,12 +168,16 @@ class OutputFolder:
         """Check, create the folder when missing and hold its lock for the block; a folder this
         created is removed again when nothing was committed into it."""
         self.check()
+        created = []  # the folders this makes, the deepest first
+        p = self.path.absolute()
+        while not p.exists():
+            created.append(p)
+            p = p.parent
         try:
-            if not self.path.exists():
-                self.path.mkdir(parents=True)
-                self._created = True
+            self.path.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise self._fail(f"cannot be created ({exc.strerror})") from None
+        self._created = bool(created)
         try:
             self._lock()
             for stale in self.path.glob(STAGE_PREFIX + "*"):  # of a killed run (we hold the lock)
@@ -183,7 +187,8 @@ class OutputFolder:
             self._unlock()
             if self._created and not self._committed:
                 with contextlib.suppress(OSError):
-                    self.path.rmdir()  # only when empty: what the run created and nothing else
+                    for folder in created:
+                        folder.rmdir()  # only when empty: what the run created and nothing else
             self._created = False
 
     @contextlib.contextmanager

@@ -585,6 +585,8 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
         from .track.geometry import geometry_for_run
         tic_geometry = time.perf_counter()
+        if cfg.geometry.enabled:
+            say("computing the track geometry")
         geometry = geometry_for_run(pipeline, problem if geometry_imu is None else replace(problem, imu=geometry_imu),
                                     res, dense, chainage, log.gauge)
         if geometry is not None:

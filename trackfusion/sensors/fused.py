@@ -219,9 +219,9 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
     extra = trajectory_channels(table, origin, max_rate_hz, epoch_ns)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
-    if raw is not None and raw.source is not None and raw.source.unchanged() and epoch_ns == 0:
-        copy_log(path, raw.source, extra)
-    else:  # (on the absolute clock the raw topics' times move: re-encoded, not copied)
+    if raw is not None and raw.source is not None and raw.source.unchanged():
+        copy_log(path, raw.source, extra, time_offset_ns=epoch_ns)
+    else:
         write_log(path, raw if raw is not None else SensorLog(), extra, time_offset_ns=epoch_ns)
 
 

@@ -156,7 +156,8 @@ def _format(schema: str, columns: list[list]) -> list[str]:
 
 def _streams(log: SensorLog, offset_ns: int = 0) -> list[_Stream]:
     """Every sensor present, in channel order, checked and formatted; ``offset_ns`` is added to every
-    log_time (and to the payloads' timestamps): ``fused.mcap`` on the survey's absolute clock."""
+    log_time (``fused.mcap`` on the survey's absolute clock; the payloads stay as in the log, as
+    :func:`copy_log` keeps them)."""
     out: list[_Stream] = []
     if log.imu is not None:
         d, topic = log.imu, "/imu"
@@ -172,9 +173,10 @@ def _streams(log: SensorLog, offset_ns: int = 0) -> list[_Stream]:
         out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
     if log.gnss is not None:
         d, topic = log.gnss, "/gnss"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
+        own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
+        ns = own + offset_ns
         n = ns.size
-        cols = [(ns // 10**9).tolist(), (ns % 10**9).tolist()] + _columns(topic, n, [
+        cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
             ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
             ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
         out.append(_Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols)))
@@ -349,10 +351,12 @@ class RawSource:
         return (st.st_size, st.st_mtime_ns) == (self.size, self.mtime_ns)
 
 
-def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
+def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
+                    ) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
     """Copy the source's metadata, chunk and message index records unchanged (chunks stay
     compressed; message indexes are relative to their chunk, so they stay valid); returns the
-    metadata and chunk indexes of the copies."""
+    metadata and chunk indexes of the copies. With ``offset_ns``, every message's log and
+    publish time moves by it (:func:`_shifted_chunk`, :func:`_shifted_message_index`)."""
     metadata_indexes: list[MetadataIndex] = []
     chunk_indexes: list[ChunkIndex] = []
     last_op = None
@@ -366,6 +370,8 @@ def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex
                 name = _Cursor(rec[9:], start + 9).text()
                 metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
             elif op == _CHUNK:
+                if offset_ns:
+                    rec = _shifted_chunk(rec, offset_ns, start)
                 t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
                 n = struct.unpack_from("<I", rec, 37)[0]
                 compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
@@ -374,11 +380,59 @@ def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex
                     chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
                     compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
             elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
+                if offset_ns:
+                    rec = _shifted_message_index(rec, offset_ns)
                 index = chunk_indexes[-1]  # message indexes follow their chunk
                 index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
                 index.message_index_length += len(rec)
             last_op = op if op != _METADATA else last_op
     return metadata_indexes, chunk_indexes
+
+
+def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
+    """A chunk record with every message's log_time and publish_time moved by ``offset_ns``
+    (both are times on one clock, the MCAP specification's publish time of 0 included): inflated,
+    the message headers patched, compressed
+    again with the chunk's own compression (its payloads, and any schema and channel records in
+    it, stay byte for byte); start and end time and CRC follow."""
+    t0, t1, size, crc = struct.unpack_from("<QQQI", rec, 9)
+    n = struct.unpack_from("<I", rec, 37)[0]
+    compression = rec[41:41 + n].decode("utf-8")
+    clen = struct.unpack_from("<Q", rec, 41 + n)[0]
+    data = bytearray(_inflate(compression, rec[49 + n:49 + n + clen], size, at, complete=True))
+    offsets = _message_offsets(bytes(data))  # every record a message (what trackfusion writes): at once
+    if offsets is None:
+        offsets, pos = [], 0
+        while pos + 9 <= len(data):  # any writer's records, in order
+            op, length = struct.unpack_from("<BQ", data, pos)
+            if op == _MESSAGE:
+                offsets.append(pos)
+            pos += 9 + length
+        offsets = np.asarray(offsets, np.int64)
+    raw = np.frombuffer(data, np.uint8)
+    at_times = (offsets + 15)[:, None] + np.arange(16)  # log_time and publish_time of each message
+    times = raw[at_times].copy().view("<u8")  # (M, 2): log_time, publish_time
+    times += np.uint64(offset_ns)
+    raw[at_times] = times.view(np.uint8).reshape(-1, 16)
+    raw = bytes(data)
+    if compression == "zstd":
+        comp = _compress(raw)
+    elif compression == "lz4":
+        import lz4.frame
+        comp = lz4.frame.compress(raw)
+    else:
+        comp = raw
+    body = struct.pack("<QQQI", t0 + offset_ns if size else t0, t1 + offset_ns if size else t1, size,
+                       zlib.crc32(raw) if crc else 0) + struct.pack("<I", n) + rec[41:41 + n] + struct.pack(
+        "<Q", len(comp))
+    return _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp)) + body + comp
+
+
+def _shifted_message_index(rec: bytes, offset_ns: int) -> bytes:
+    """A message index record with its log times moved by ``offset_ns`` (offsets unchanged)."""
+    pairs = np.frombuffer(rec, dtype="<u8", offset=15).reshape(-1, 2).copy()
+    pairs[:, 0] += np.uint64(offset_ns)
+    return rec[:15] + pairs.tobytes()
 
 
 def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
@@ -409,7 +463,7 @@ def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
 
 
 def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]],
-                source: RawSource | None = None) -> None:
+                source: RawSource | None = None, source_offset_ns: int = 0) -> None:
     """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer.
     With ``source``, its schemas and channels (same ids) and records come first, copied unchanged;
     ``streams`` then take the next ids."""
@@ -435,7 +489,7 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
                                     message_encoding="json", metadata={}))
     for rec in schema_recs + channel_recs:
         out.put(_record(rec))
-    metadata_indexes, chunk_indexes = _copied_records(out, source) if source else ([], [])
+    metadata_indexes, chunk_indexes = _copied_records(out, source, source_offset_ns) if source else ([], [])
     for name, data in metadata:
         rec = _record(Metadata(name=name, metadata=data))
         metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
@@ -497,16 +551,18 @@ def _extra_streams(extra: Iterable[ExtraChannel]) -> list[_Stream]:
             for c in extra]
 
 
-def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = ()) -> None:
+def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = (), time_offset_ns: int = 0) -> None:
     """Write to ``path`` the raw log file ``source`` (a ``SensorLog.source`` from :func:`read_log`)
     with its schemas, channels (same ids), metadata and chunks copied byte for byte (no decoding,
     no recompression), then the ``extra`` channels (next ids) in chunks of their own; summary
     as :func:`write_log`. Atomic and byte-identical for identical input. Raises
-    :class:`SensorDataError` when the file changed since it was read."""
+    :class:`SensorDataError` when the file changed since it was read. ``time_offset_ns`` [ns]
+    moves the copied messages' log and publish times (``fused.mcap`` on the survey's absolute
+    clock): their chunks are inflated, patched and compressed again, payloads untouched."""
     if not source.unchanged():
         raise SensorDataError(f"{source.path}: changed since it was read; read it again")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _write_mcap(fh, _extra_streams(extra), [], source)
+        _write_mcap(fh, _extra_streams(extra), [], source, int(time_offset_ns))
 
 
 # =================================================================================================
