@@ -268,3 +268,17 @@ def test_a_failed_command_removes_every_folder_it_created(tmp_path):
                 (stage / "x.csv").write_text("1\n")
                 raise RuntimeError("fails while writing")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_input_in_the_output_folder_is_never_replaced_even_with_force(survey, tmp_path, capsys):
+    """The reference named trajectory.csv in --out: refused before reading, --force or not."""
+    case = tmp_path / "case"
+    case.mkdir()
+    for name in ("log.mcap", "pipeline.yaml"):
+        (case / name).write_bytes((survey / name).read_bytes())
+    (case / "trajectory.csv").write_bytes((survey / "truth.csv").read_bytes())
+    (case / "trajectory.json").write_bytes((survey / "truth.json").read_bytes())
+    (case / "pipeline.yaml").write_text((case / "pipeline.yaml").read_text().replace("truth.csv", "trajectory.csv"))
+    before = _digest(case)
+    _refused(capsys, ["run", str(case / "pipeline.yaml"), "--out", str(case), "--force"], "would replace the input")
+    assert _digest(case) == before

@@ -97,10 +97,12 @@ class OutputFolder:
     (:meth:`writing`: both at once)."""
 
     def __init__(self, path: str | os.PathLike, force: bool = False, what: str = "--out",
-                 inputs: Iterable[str | os.PathLike] = (), command: str = "trackfusion"):
+                 inputs: Iterable[str | os.PathLike] = (), command: str = "trackfusion",
+                 writes: Iterable[str] = ()):
         self.path = Path(path)
         self.force, self.what, self.command = force, what, command
         self.inputs = [Path(p) for p in inputs]
+        self.writes = tuple(writes)  # names the command may write: an input of one of them is refused at once
         self._lock_fd: int | None = None
         self._created = self._committed = False
 
@@ -121,6 +123,10 @@ class OutputFolder:
             return
         if not _writable_dir(p):
             raise self._fail("is not writable")
+        for name in self.writes:
+            for source in self.inputs:
+                if _same_file(source, p / name):
+                    raise self._fail(f"would replace the input {source}; write the outputs elsewhere")
         foreign = foreign_entries(p)
         if foreign and not self.force:
             shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
@@ -180,6 +186,7 @@ class OutputFolder:
         self._created = bool(created)
         try:
             self._lock()
+            self.check()  # again, now that no other run can change the folder
             for stale in self.path.glob(STAGE_PREFIX + "*"):  # of a killed run (we hold the lock)
                 shutil.rmtree(stale, ignore_errors=True)
             yield self

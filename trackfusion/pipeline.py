@@ -482,9 +482,14 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     ``force``: write beside files trackfusion did not write)."""
     from .outdir import OutputFolder
     out = Path(out_dir) if out_dir is not None else pipeline.base_dir / "out"
-    folder = OutputFolder(out, force, inputs=input_paths(pipeline), command="trackfusion run")
+    folder = OutputFolder(out, force, inputs=input_paths(pipeline), command="trackfusion run", writes=RUN_FILES)
     with folder.locked():
         return _run(pipeline, folder, progress)
+
+
+#: the files a run may write into its output folder
+RUN_FILES = ("trajectory.csv", "trajectory.json", "metrics.json", "geometry.csv", "geometry.json", "fused.mcap",
+             "report.html")
 
 
 def input_paths(pipeline: Pipeline) -> list[Path]:
