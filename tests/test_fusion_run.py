@@ -111,3 +111,9 @@ def test_gnss_outliers_are_rejected(tmp_path):
     assert len(injected) > 3
     assert set(np.round(injected, 6)) <= set(np.round(rejected, 6))
     assert len(rejected) <= len(injected) + 2
+    # the IMU's white noise from the static ends, against the simulated IMU's
+    spec = truth["errors"]["imu"]["spec"]
+    est = result.metrics["noise_estimates"]["imu"]
+    for key in ("gyro_arw_deg_per_sqrt_h", "accel_vrw_mps_per_sqrt_h"):
+        assert est[key]["value"] == pytest.approx(spec[key], rel=0.03)
+        assert abs(est[key]["value"] - spec[key]) < 4 * est[key]["sigma"] + 0.002 * spec[key]

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from trackfusion.report.html import _measured, geometry_section, RunFiles
+from trackfusion.report.html import RunFiles, geometry_section
+from trackfusion.track.plots import column_label
 from trackfusion.track.geometry import GeometryConfig, ToleranceCheck, compute_geometry
 from trackfusion.track.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.design import DesignAlignment
@@ -56,9 +57,10 @@ def test_without_gauge_the_right_rails_lateral_and_the_gauge_are_nan_and_said(tr
     assert g.sidecar()["not_measured"] == g.metrics["not_measured"]
     json.dumps(g.metrics, allow_nan=False)  # metrics.json stays valid
     # the checks on them are skipped, said so; the left rail's lateral check still runs
-    skipped = {s["check"] for s in g.metrics["skipped_checks"]}
-    assert {"lateral_10m:right_lateral_versine_10m_mm", "gauge:gauge_variation_mm"} <= skipped
+    skipped = {s["check"]: s.get("columns") for s in g.metrics["skipped_checks"]}
+    assert skipped == {"lateral_10m": ["right_lateral_versine_10m_mm"], "gauge": ["gauge_variation_mm"]}
     assert {e["check"] for e in g.metrics["exceedances"]} == {"lateral_10m:left_lateral_versine_10m_mm"}
+    assert not verdict_line({"geometry": g.metrics}).startswith("no verdict")  # the left rail was checked
 
 
 def test_with_a_gauge_sensor_every_column_is_measured(track):
@@ -87,28 +89,29 @@ def test_report_does_not_draw_a_column_that_is_not_measured(track):
         html = geometry_section(run)
     finally:
         H.figures.series_with_bands = real
-    assert "Not measured (no gauge sensor" in html
-    assert "right_lateral_mm" in html.split("Not measured", 1)[1]
+    assert "Not measured" in html
+    assert column_label("right_lateral_mm") in html.split("Not measured", 1)[1]
     assert not [c for c in drawn if c.startswith("right_lateral") or c.startswith("gauge")], drawn
     assert "left_lateral_mm" in drawn and "right_vertical_mm" in drawn
 
 
-def test_measured_keeps_columns_with_a_finite_value():
-    out: list[str] = []
-    kept = _measured({"a": np.array([np.nan, 1.0]), "b": np.full(3, np.nan)}, out)
-    assert list(kept) == ["a"] and out == ["b"]
-
-
 @pytest.mark.parametrize("metrics, line", [
     ({}, "no verdict: no reference and no tolerance table"),
-    ({"geometry": {"tolerance_table": "seed002-china", "checks": ["a", "b"], "exceedances": [],
+    ({"geometry": {"tolerance_table": "seed002-china", "exceedances": [],
+                   "tolerance_checks": [{"name": "a", "columns": ["x"]}, {"name": "b", "columns": ["y"]}],
                    "skipped_checks": [{"check": "a", "reason": "needs a design alignment (inputs.design)"},
                                       {"check": "b", "reason": "needs a design alignment (inputs.design)"}]}},
      "no verdict: tolerance table seed002-china: every check skipped"),
-    ({"geometry": {"tolerance_table": "t", "checks": ["a"], "exceedances": [{"check": "a:left_x"}],
-                   "skipped_checks": []}}, "verdict: the survey FAILS tolerance table t: 1 exceedance (a)"),
-    ({"geometry": {"tolerance_table": "t", "checks": ["a"], "exceedances": [], "skipped_checks": []}},
+    ({"geometry": {"tolerance_table": "t", "tolerance_checks": [{"name": "a", "columns": ["left_x"]}],
+                   "exceedances": [{"check": "a:left_x"}], "skipped_checks": []}},
+     "verdict: the survey FAILS tolerance table t: 1 exceedance (a)"),
+    ({"geometry": {"tolerance_table": "t", "tolerance_checks": [{"name": "a", "columns": ["left_x"]}],
+                   "exceedances": [], "skipped_checks": []}},
      "verdict: the survey MEETS tolerance table t: no exceedance"),
+    ({"geometry": {"tolerance_table": "t", "exceedances": [],
+                   "tolerance_checks": [{"name": "a", "columns": ["left_x", "right_x"]}],
+                   "skipped_checks": [{"check": "a", "columns": ["right_x"], "reason": "not measured (right_x)"}]}},
+     "verdict: the survey MEETS tolerance table t: no exceedance (1 check skipped: a not measured (right_x))"),
 ])
 def test_verdict_line(metrics, line):
     assert verdict_line(metrics).startswith(line)
@@ -126,7 +129,7 @@ def test_verdict_of_both_sources_says_which_fails():
     m = {"evaluation": {"thresholds": {"scale_m": 5.0, "mse_mm": 0.67, "adev_mm": 0.16, "components": ["lateral"]}},
          "relative_accuracy": {"lateral": {"mse_pass": True, "adev_pass": True, "mse_at_threshold_mm": 0.3,
                                            "adev_at_threshold_mm": 0.1}},
-         "geometry": {"tolerance_table": "t", "checks": ["a"], "exceedances": [{"check": "a:left_x"}],
-                      "skipped_checks": []}}
+         "geometry": {"tolerance_table": "t", "tolerance_checks": [{"name": "a", "columns": ["left_x"]}],
+                      "exceedances": [{"check": "a:left_x"}], "skipped_checks": []}}
     assert verdict_line(m) == ("verdict: the survey FAILS: meets the relative-accuracy thresholds at 5 m "
                                "(MSE <= 0.67 mm, ADEV <= 0.16 mm); fails tolerance table t: 1 exceedance (a)")

@@ -114,7 +114,7 @@ def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
 def test_contract_sections_render_when_their_data_is_present(full_dir):
     text = (full_dir / "report.html").read_text()
     assert _sections(text) == BASE_SECTIONS | CONTRACT_SECTIONS
-    assert "77.25" in text and "4.321" in text  # the exceedance row
+    assert "77.25" in text and "4.32" in text and "id='exc-E1'" in text  # the exceedance row, an anchor
     assert "prism hand-over gap" in text and "gnss_outage" in text and "slope_mm_per_m" in text
     assert text.count("data:image/png;base64,") == 7  # plan, sigmas, accuracy, 3 geometry, time sync
 
@@ -219,3 +219,65 @@ def test_fused_mcap_draws_the_rails_of_geometry_csv(run_dir, full_dir, tmp_path)
     assert name == "foxglove.GeoJSON" and [f["geometry"]["type"] for f in fc["features"]] == ["LineString"] * 2
     lon, lat, _ = fc["features"][0]["geometry"]["coordinates"][0]
     assert abs(lat - 42.86) < 0.01 and abs(lon - 90.17) < 0.01
+
+
+def _report_of(full_dir, tmp_path, geometry_metrics: dict, nan_columns: tuple[str, ...] = ()) -> str:
+    """The report of a copy of ``full_dir`` with ``metrics.geometry`` replaced and some geometry
+    columns made all-NaN (not measured)."""
+    d = tmp_path / "copy"
+    shutil.copytree(full_dir, d)
+    m = json.loads((d / "metrics.json").read_text())
+    m["geometry"] = geometry_metrics
+    (d / "metrics.json").write_text(json.dumps(m))
+    if nan_columns:
+        g = read_csv_table(d / "geometry.csv")
+        for c in nan_columns:
+            g[c] = np.full_like(g[c], np.nan)
+        write_csv_table(d / "geometry.csv", g, {c: ("m" if c.endswith("_m") else "mm") for c in g}, "n",
+                        {"lat_deg": 42.86, "lon_deg": 90.17, "h_m": 60.0})
+    write_report(d)
+    return (d / "report.html").read_text()
+
+
+def _geometry_text(text: str) -> str:
+    return re.search(r"<section id='geometry'>.*?</section>", text, re.S).group(0)
+
+
+def test_report_says_when_no_tolerance_table_was_given(full_dir, tmp_path):
+    text = _geometry_text(_report_of(full_dir, tmp_path, {"step_m": 0.25, "tolerance_table": None,
+                                                         "exceedances": [], "skipped_checks": []}))
+    assert "No tolerance table given" in text and "No exceedance" not in text
+
+
+def test_report_says_skipped_checks_are_skipped_and_why(full_dir, tmp_path):
+    skipped = [{"check": "shortwave_30m_5m", "reason": "needs a design alignment (inputs.design)"},
+               {"check": "longwave_300m_150m", "reason": "needs a design alignment (inputs.design)"}]
+    checks = [{"name": s["check"], "kind": "chord_indicator", "columns": [], "levels_mm": {"limit": 2.0}}
+              for s in skipped]
+    text = _geometry_text(_report_of(full_dir, tmp_path, {"step_m": 0.25, "tolerance_table": "seed002-china",
+                                                         "tolerance_checks": checks, "exceedances": [],
+                                                         "skipped_checks": skipped}))
+    assert "Not checked: every check of table <b>seed002-china</b> was skipped" in text
+    assert text.count("needs a design alignment (inputs.design)") == 2 and "No exceedance" not in text
+
+
+def test_report_draws_levels_links_exceedances_and_shows_unmeasured_columns(full_dir, tmp_path):
+    levels = {"alert": 1.0, "intervention": 2.0, "immediate_action": 4.0}
+    gm = {"step_m": 0.25, "tolerance_table": "mine",
+          "tolerance_checks": [{"name": "ll", "kind": "limit", "columns": ["left_vertical_mm", "right_vertical_mm"],
+                                "levels_mm": levels}],
+          "exceedances": [{"check": "ll:left_vertical_mm", "column": "left_vertical_mm", "from_m": 70.0, "to_m": 72.5,
+                           "length_m": 2.75, "chainage_m": 71.0, "value_mm": -2.5049, "level": "intervention",
+                           "limit_mm": 2.0}],
+          "skipped_checks": [], "quality_index": {"section_m": 200.0, "columns": {"left longitudinal level": "left_vertical_mm"},
+                                                  "not_measured": ["right alignment"],
+                                                  "sections": [{"from_m": 0.0, "to_m": 200.0, "left longitudinal level": 1.2345}]}}
+    text = _geometry_text(_report_of(full_dir, tmp_path, gm, ("right_lateral_mm", "right_lateral_versine_10m_mm")))
+    row = re.search(r"<tr id='exc-E1'>(.*?)</tr>", text).group(1)
+    assert [re.sub("<[^>]+>", "", c) for c in re.findall(r"<td>(.*?)</td>", row)] == \
+        ["E1", "ll", "left longitudinal level", "70.00", "72.50", "2.75", "-2.50", "71.00", "intervention", "2.00"]
+    assert "href='#fig-irregularities'" in row and "id='fig-irregularities'" in text
+    assert re.search(r"<area shape='rect' coords='\d+,\d+,\d+,\d+' href='#exc-E1'", text)
+    assert "Not measured (not drawn): right alignment, right lateral versine, 10 m chord" in text
+    assert "<td>1.23</td>" in text and "Not measured: right alignment" in text
+    assert "-0.00" not in text and "_mm (mm)" not in text

@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
 from .fusion import faults, input_checks, preprocess
+from .fusion.imu_noise import estimate_imu_noise
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
@@ -58,7 +59,7 @@ class InputsConfig(_Strict):
     log: str
     reference: str | None = None
     allow_truncated: bool = False
-    design: str | None = None  # design alignment YAML (an ``alignment:`` section), for geometry
+    design: str | None = None  # design alignment: YAML (``alignment:``) or LandXML 1.2 (.xml), for geometry
 
 
 class OriginConfig(_Strict):
@@ -80,7 +81,16 @@ class TrolleyConfig(_Strict):
 
 class ImuConfig(ImuSpec):
     """IMU specification; ``grade: <name>`` starts from a named grade
-    (``navigation``, ``navigation-500``, ``fog``, ``mems-tactical``) and other keys override it."""
+    (``navigation``, ``navigation-500``, ``fog``, ``mems-tactical``) and other keys override it.
+    ``white_noise_tolerance``: the factor within which the datasheet's ARW / VRW are trusted;
+    where the static periods' estimate lies outside it, the smoother uses the estimate
+    (docs/noise_estimation.md)."""
+
+    white_noise_tolerance: float = Field(1.5, ge=1.0)
+
+    def spec(self) -> ImuSpec:
+        """The datasheet part, as :class:`ImuSpec`."""
+        return ImuSpec(**self.model_dump(exclude={"white_noise_tolerance"}))
 
     @model_validator(mode="before")
     @classmethod
@@ -270,7 +280,7 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     origin = _origin(pipeline, log)
     odometer = None
     info: dict[str, Any] = {}
-    imu_spec = ImuSpec(**sensors.imu.model_dump())
+    imu_spec = sensors.imu.spec()
     # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
     src = str(pipeline.path(cfg.inputs.log))
     use_gnss = log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled
@@ -313,6 +323,16 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
                                          src)  # issue 8
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
+    imu_noise = estimate_imu_noise(log.imu, static, imu_spec)  # reported beside the datasheet's values
+    if imu_noise is not None:
+        info["noise_estimates"] = {"imu": imu_noise.to_json()}
+        say(imu_noise.summary())
+        imu_spec, replaced = _imu_spec_from_data(imu_spec, imu_noise, sensors.imu.white_noise_tolerance)
+        info["noise_estimates"]["imu"]["used"] = replaced
+        for key in replaced:
+            say(f"sensors.imu.{key}: the static data give {getattr(imu_spec, key):.3g}, outside the datasheet's "
+                f"{getattr(sensors.imu, key):.3g} x/ {sensors.imu.white_noise_tolerance:g} "
+                "(sensors.imu.white_noise_tolerance): the smoother uses the estimate")
     inclinometer = None
     if use_inclinometer:
         inc = log.inclinometer
@@ -328,6 +348,19 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         static_intervals_s=static, factors=fs, keyframes=cfg.keyframes, smoother=cfg.smoother,
         odometer=odometer, gnss=gnss, inclinometer=inclinometer)
     return problem, info
+
+
+def _imu_spec_from_data(spec: ImuSpec, est, tolerance: float) -> tuple[ImuSpec, list[str]]:
+    """``spec`` with the white-noise densities the static data estimate (``est``, an
+    :class:`~trackfusion.fusion.imu_noise.ImuNoiseEstimate`) where they differ from the
+    datasheet by more than the factor ``tolerance``; returns it and the keys replaced."""
+    replaced = {}
+    for key in ("gyro_arw_deg_per_sqrt_h", "accel_vrw_mps_per_sqrt_h"):
+        term = est.terms()[key]
+        ratio = term.ratio()
+        if term.value is not None and (ratio is None or not 1.0 / tolerance <= ratio <= tolerance):
+            replaced[key] = term.value
+    return (spec.model_copy(update=replaced) if replaced else spec), sorted(replaced)
 
 
 # --- total stations (issue 5) ---------------------------------------------------------------------

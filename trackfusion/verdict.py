@@ -47,8 +47,15 @@ def _tolerances(m: dict[str, Any]) -> tuple[bool | None, str] | None:
 
 
 def _all_skipped(geo: dict[str, Any]) -> bool:
-    skipped = {s["check"] for s in geo.get("skipped_checks", [])}
-    return set(geo.get("checks", [])) <= skipped
+    """True when no check of the table was made: each skipped whole, or on every column it applies to."""
+    gone: dict[str, set | None] = {}  # check -> the columns skipped (None: the whole check)
+    for s in geo.get("skipped_checks", []):
+        cols = s.get("columns")
+        gone[s["check"]] = None if cols is None or gone.get(s["check"], set()) is None else gone.get(s["check"], set()) | set(cols)
+    for c in geo.get("tolerance_checks", []):
+        if c["name"] not in gone or (gone[c["name"]] is not None and not set(c.get("columns", [])) <= gone[c["name"]]):
+            return False
+    return True
 
 
 def verdict_line(metrics: dict[str, Any]) -> str:

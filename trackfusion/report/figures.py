@@ -60,25 +60,59 @@ def _every(n: int) -> slice:
     return slice(None, None, max(1, -(-n // MAX_POINTS)))
 
 
+#: A plan whose short side is below this share of its long side is drawn on unequal scales
+#: (on equal ones a straight would be a flat line).
+EQUAL_PLAN_MIN_RATIO = 0.05
+
+
+def offset_from_chord_m(e_m: np.ndarray, n_m: np.ndarray, chainage_m: np.ndarray) -> np.ndarray:
+    """Signed horizontal distance [m] (N,) of each point from the straight line (the chord)
+    through the points of lowest and highest chainage (so out-and-back surveys share one
+    chord), positive to the left of increasing chainage; zero when the two coincide."""
+    i0, i1 = int(np.nanargmin(chainage_m)), int(np.nanargmax(chainage_m))
+    d = np.array([e_m[i1] - e_m[i0], n_m[i1] - n_m[i0]], dtype=float)
+    norm = float(np.hypot(*d))
+    if norm == 0.0:
+        return np.zeros_like(np.asarray(e_m, dtype=float))
+    return (d[0] * (n_m - n_m[i0]) - d[1] * (e_m - e_m[i0])) / norm
+
+
 def plan_and_profile(traj: dict[str, np.ndarray]):
-    """Plan (north against east) and profile (up against chainage) of the trajectory [m]."""
+    """Plan (north against east [m], equal scales unless the path is nearly straight), the
+    horizontal offset from the chord of lowest to highest chainage against chainage (what a
+    straight's plan hides)
+    and the profile (up against chainage [m])."""
     fig = _figure(11.0, 3.6)
-    ax_plan, ax_prof = _panels(fig, 1, 2)
+    ax_plan, ax_off, ax_prof = _panels(fig, 1, 3)
     s = _every(traj["t_s"].size)
-    ax_plan.plot(traj["e_m"][s], traj["n_m"][s], lw=1.0, color="C0")
-    ax_plan.plot(traj["e_m"][0], traj["n_m"][0], "o", color="C2", label="start")
-    ax_plan.plot(traj["e_m"][-1], traj["n_m"][-1], "s", color="C3", label="end")
-    ax_plan.set_xlabel("east e (m)")
-    ax_plan.set_ylabel("north n (m)")
-    ax_plan.set_aspect("equal", adjustable="datalim")
-    ax_plan.set_title("plan (frame n, equal scales)", fontsize=9)
+    e, n = traj["e_m"], traj["n_m"]
+    ax_plan.plot(e[s], n[s], lw=1.0, color="C0")
+    ax_plan.plot(e[0], n[0], "o", color="C2", label="start")
+    ax_plan.plot(e[-1], n[-1], "s", color="C3", label="end")
+    ax_plan.set_xlabel("east (m)")
+    ax_plan.set_ylabel("north (m)")
+    spans = sorted([float(np.ptp(e)), float(np.ptp(n))])
+    if spans[1] > 0 and spans[0] / spans[1] >= EQUAL_PLAN_MIN_RATIO:
+        ax_plan.set_aspect("equal", adjustable="datalim")
+        ax_plan.set_title("plan (frame n, equal scales)", fontsize=9)
+    else:
+        ax_plan.set_title("plan (n; scales NOT equal: nearly straight)", fontsize=8)
     ax_plan.legend(fontsize=7)
     ax_plan.grid(True, alpha=0.3)
+    off_m = offset_from_chord_m(e, n, traj["chainage_m"])
+    big = float(np.nanmax(np.abs(off_m))) >= 1.0 if off_m.size else False
+    ax_off.plot(traj["chainage_m"][s], off_m[s] * (1.0 if big else 1e3), ".", ms=1.0, color="C0")
+    ax_off.set_xlabel("chainage (m)")
+    ax_off.set_ylabel(f"offset, left positive ({'m' if big else 'mm'})")
+    ax_off.set_title("offset from the chord, lowest to highest chainage", fontsize=8)
+    ax_off.grid(True, alpha=0.3)
     ax_prof.plot(traj["chainage_m"][s], traj["u_m"][s], ".", ms=1.0, color="C0")
     ax_prof.set_xlabel("chainage (m)")
-    ax_prof.set_ylabel("up u (m)")
+    ax_prof.set_ylabel("height up (m)")
     ax_prof.set_title("profile (IMU origin height)", fontsize=9)
     ax_prof.grid(True, alpha=0.3)
+    for ax in (ax_plan, ax_off, ax_prof):
+        ax.ticklabel_format(useOffset=False, style="plain")
     return fig
 
 
@@ -129,29 +163,68 @@ def relative_accuracy(ra: dict, thresholds: dict):
     return fig
 
 
-def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], limits_mm: dict[str, float],
-                      title: str, exceedances: list[dict] | None = None):
-    """One panel per series [mm] against chainage [m]; ``limits_mm[name]`` draws a +-limit band,
-    exceedance chainages are marked with red ticks on the panel whose column they name."""
+#: Line colours of the tolerance levels (a single ``limit`` is drawn as the intervention level).
+LEVEL_COLOURS = {"alert": "#c99700", "limit": "#d9480f", "intervention": "#d9480f", "immediate_action": "#8b0000"}
+LEVEL_WORDS = {"alert": "alert", "limit": "limit", "intervention": "intervention",
+               "immediate_action": "immediate action"}
+
+
+def series_with_bands(chainage_m: np.ndarray, series: dict[str, np.ndarray], levels_mm: dict[str, dict[str, float]],
+                      title: str, exceedances: list[dict] | None = None, labels: dict[str, str] | None = None):
+    """One panel per series [mm] against chainage [m], each labelled ``labels[name]`` (default the
+    name); ``levels_mm[name]`` (level -> limit, e.g. ``{"alert": 6, "intervention": 10}``) draws
+    each level as +-lines in its colour (LEVEL_COLOURS); ``exceedances`` (dicts with ``column``,
+    ``from_m``, ``to_m``, ``chainage_m``, ``value_mm`` and ``label``, e.g. ``E3``) are shaded on
+    the panel of their column, their peak marked and labelled.
+
+    Returns ``(fig, spots)``: ``spots`` one ``(label, x0, y0, x1, y1)`` per drawn exceedance, its
+    shaded box in pixels of the PNG (:func:`png_bytes` at the default dpi; origin top left), for
+    an HTML image map linking each to its row of the exceedance list."""
+    import textwrap
+
     names = list(series)
+    labels = labels or {}
     fig = _figure(11.0, 1.7 * len(names) + 0.6)
     axes = np.atleast_1d(_panels(fig, len(names), 1, sharex=True))
     s = _every(chainage_m.size)
+    marked: list[tuple] = []
+    legend_of: dict | None = None
     for ax, name in zip(axes, names):
         ax.plot(chainage_m[s], series[name][s], lw=0.7, color="C0")
-        limit = limits_mm.get(name)
-        if limit is not None:
-            ax.axhspan(-limit, limit, color="C2", alpha=0.12, lw=0)
-            ax.axhline(limit, color="C2", lw=0.8, ls="--")
-            ax.axhline(-limit, color="C2", lw=0.8, ls="--")
-        marks = [e["chainage_m"] for e in exceedances or [] if e.get("check") == name]
-        if marks:
-            ax.plot(marks, [e["value_mm"] for e in exceedances if e.get("check") == name], "v", color="C3", ms=4)
-        ax.set_ylabel(f"{name}\n(mm)", fontsize=7)
+        for level, limit in (levels_mm.get(name) or {}).items():
+            colour = LEVEL_COLOURS.get(level, "C3")
+            ax.axhline(limit, color=colour, lw=0.9, ls="--", label=f"{LEVEL_WORDS.get(level, level)} ±{limit:g} mm")
+            ax.axhline(-limit, color=colour, lw=0.9, ls="--")
+        if levels_mm.get(name) and levels_mm[name] != legend_of:  # a legend where the levels change
+            ax.legend(fontsize=7, loc="upper right", ncol=3)
+            legend_of = levels_mm[name]
+        for e in exceedances or []:
+            if e.get("column") == name:
+                ax.axvspan(e["from_m"], e["to_m"], color="C3", alpha=0.25, lw=0)
+                ax.plot([e["chainage_m"]], [e["value_mm"]], "v", color="C3", ms=4)
+                ax.annotate(e["label"], (e["chainage_m"], e["value_mm"]), xytext=(2, 2), textcoords="offset points",
+                            fontsize=7, color="C3")
+                marked.append((ax, e))
+        ax.set_ylabel("\n".join(textwrap.wrap(labels.get(name, name), 22)), fontsize=7)
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("chainage (m)")
     axes[0].set_title(title, fontsize=9)
-    return fig
+    return fig, _spots(fig, marked)
+
+
+def _spots(fig, marked: list[tuple]) -> list[tuple[str, int, int, int, int]]:
+    """Pixel boxes (origin top left) of the exceedances drawn on their axes, at least 8 px wide."""
+    height_px = fig.get_size_inches()[1] * fig.dpi
+    out = []
+    for ax, e in marked:
+        y0, y1 = ax.get_ylim()
+        (xa, ya), (xb, yb) = ax.transData.transform([(e["from_m"], y0), (e["to_m"], y1)])
+        xa, xb = min(xa, xb), max(xa, xb)
+        if xb - xa < 8:
+            xa, xb = 0.5 * (xa + xb) - 4, 0.5 * (xa + xb) + 4
+        out.append((e["label"], int(xa), int(height_px - max(ya, yb)), int(np.ceil(xb)),
+                    int(np.ceil(height_px - min(ya, yb)))))
+    return out
 
 
 def time_sync_curves(time_sync: dict):

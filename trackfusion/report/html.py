@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import SensorDataError
 from ..sensors.fileio import atomic_path, read_csv_table, read_json, read_sidecar, write_text_atomic
+from ..track.plots import column_label, column_unit, measured
 from . import figures
 
 IRREGULARITY_COLUMNS = ("left_vertical_mm", "right_vertical_mm", "left_lateral_mm", "right_lateral_mm")
@@ -84,36 +85,79 @@ def _e(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _fmt(v: Any) -> str:
+def num(v: float, decimals: int) -> str:
+    """``v`` with ``decimals`` decimals, never ``-0.00`` (a value that rounds to zero is unsigned)."""
+    s = f"{v:.{decimals}f}"
+    return s.lstrip("-") if float(s) == 0.0 else s
+
+
+#: Decimals of a table cell by the unit suffix of its column (what the measurements resolve:
+#: 1 um and 1 ms in mm / m / s columns, 0.1 ms for clock offsets, 0.1 mm for latitude and
+#: longitude, 0.04" for other angles in degrees); other floats get 4 significant digits.
+_DECIMALS = (("offset_s", 4), ("clock (s)", 4), ("_mm", 3), ("(mm)", 3), ("_m", 3), ("(m)", 3), ("_s", 3), ("(s)", 3),
+             ("_ppm", 1), ("_arcsec", 2), ("lat_deg", 9), ("lon_deg", 9), ("_deg", 5), ("_mrad", 3))
+
+
+def _decimals(column: str | None) -> int | None:
+    col = (column or "").strip()
+    for suffix, d in _DECIMALS:
+        if col.endswith(suffix):
+            return d
+    return None
+
+
+def _fmt(v: Any, column: str | None = None) -> str:
+    """A value for a table cell; floats rounded by their column's unit (:data:`_DECIMALS`)."""
     if isinstance(v, bool) or v is None:
         return {True: "yes", False: "no", None: "–"}[v]
     if isinstance(v, float):
-        return "–" if not math.isfinite(v) else f"{v:.6g}"
+        if not math.isfinite(v):
+            return "–"
+        d = _decimals(column)
+        return num(v, d) if d is not None else num(v, 0) if v == 0 else f"{v:.4g}"
     if isinstance(v, (list, tuple)):
-        return ", ".join(_fmt(x) for x in v) if len(v) <= 12 else f"[{len(v)} values]"
+        return ", ".join(_fmt(x, column) for x in v) if len(v) <= 12 else f"[{len(v)} values]"
     if isinstance(v, dict):
-        return "; ".join(f"{k}: {_fmt(x)}" for k, x in v.items())
+        return "; ".join(f"{k}: {_fmt(x, k)}" for k, x in v.items())
     return str(v)
 
 
 def _table(rows: list[dict], columns: list[str] | None = None, limit: int = 200) -> str:
-    """An HTML table of dict rows (columns: the union of keys in first-seen order)."""
-    cols = columns or list(dict.fromkeys(k for r in rows for k in r))
+    """An HTML table of dict rows (columns: the union of keys in first-seen order). A row's
+    ``_id`` becomes the row's anchor id; a value of :class:`Raw` is inserted as HTML."""
+    cols = columns or list(dict.fromkeys(k for r in rows for k in r if k != "_id"))
     head = "".join(f"<th>{_e(c)}</th>" for c in cols)
-    body = "".join("<tr>" + "".join(f"<td>{_e(_fmt(r.get(c)))}</td>" for c in cols) + "</tr>"
-                   for r in rows[:limit])
+
+    def cell(r: dict, c: str) -> str:
+        v = r.get(c)
+        return f"<td>{v}</td>" if isinstance(v, Raw) else f"<td>{_e(_fmt(v, c))}</td>"
+
+    body = "".join((f"<tr id='{_e(r['_id'])}'>" if "_id" in r else "<tr>") + "".join(cell(r, c) for c in cols)
+                   + "</tr>" for r in rows[:limit])
     more = f"<p class='note'>{len(rows) - limit} more rows in metrics.json.</p>" if len(rows) > limit else ""
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>{more}"
 
 
+class Raw(str):
+    """A table cell holding HTML (already escaped)."""
+
+
 def _kv(pairs: list[tuple[str, Any]]) -> str:
-    return "<table class='kv'>" + "".join(f"<tr><th>{_e(k)}</th><td>{_e(_fmt(v))}</td></tr>" for k, v in pairs) \
+    return "<table class='kv'>" + "".join(f"<tr><th>{_e(k)}</th><td>{_e(_fmt(v, k))}</td></tr>" for k, v in pairs) \
         + "</table>"
 
 
-def _img(fig, alt: str) -> str:
+def _img(fig, alt: str, spots: list[tuple[str, int, int, int, int]] | None = None) -> str:
+    """The ``<img>`` of a figure; ``spots`` (label, x0, y0, x1, y1 in pixels) add an image map
+    whose areas link to the anchors ``exc-<label>`` of the exceedance list."""
     data = base64.b64encode(figures.png_bytes(fig)).decode("ascii")
-    return f"<img alt='{_e(alt)}' src='data:image/png;base64,{data}'>"
+    if not spots:
+        return f"<img alt='{_e(alt)}' src='data:image/png;base64,{data}'>"
+    name = "map-" + re.sub(r"[^a-z0-9]+", "-", alt.lower())
+    areas = "".join(f"<area shape='rect' coords='{x0},{y0},{x1},{y1}' href='#exc-{_e(label)}' alt='{_e(label)}' "
+                    f"title='exceedance {_e(label)}'>" for label, x0, y0, x1, y1 in spots)
+    return (f"<img id='fig-{name[4:]}' alt='{_e(alt)}' usemap='#{name}' src='data:image/png;base64,{data}'>"
+            f"<map name='{name}'>{areas}</map>")
 
 
 def _run_img(run: RunFiles, alt: str, make_figure) -> str:
@@ -168,7 +212,7 @@ def summary_section(run: RunFiles) -> str:
         ("sensors", ", ".join(_sensors(config, m)) or "?"),
         ("duration", f"{m.get('duration_s', float(traj['t_s'][-1] - traj['t_s'][0])):.1f} s"),
         ("distance travelled", f"{travelled_m:.1f} m"),
-        ("chainage covered", f"{chainage.min():.2f} m to {chainage.max():.2f} m"),
+        ("chainage covered", f"{num(float(chainage.min()), 2)} m to {num(float(chainage.max()), 2)} m"),
         ("origin of n", m.get("origin")),
         ("IMU samples", m.get("imu_samples")),
         ("keyframes / factors / iterations",
@@ -226,13 +270,127 @@ def accuracy_section(m: dict, images: dict[str, str] | None = None) -> str:
     return _section("relative-accuracy", "Relative accuracy against the reference", body)
 
 
-def _geometry_limits(geo_metrics: dict) -> dict[str, float]:
-    """Tolerance per geometry column [mm]: ``geometry.limits_mm`` when given, else the limits
-    the exceedances were checked against (their ``check`` names the column)."""
-    limits = {k: float(v) for k, v in (geo_metrics.get("limits_mm") or {}).items()}
-    for e in geo_metrics.get("exceedances", []):
-        limits.setdefault(e.get("check"), abs(float(e["limit_mm"])))
-    return limits
+def _levels_by_column(gm: dict) -> dict[str, dict[str, float]]:
+    """Tolerance levels per geometry column (level -> limit [mm]): the ``tolerance_checks`` of
+    metrics ``geometry``; runs written before them: ``limits_mm`` or the exceedances' limits."""
+    out: dict[str, dict[str, float]] = {}
+    for c in gm.get("tolerance_checks") or []:
+        for col in c.get("columns", []):
+            out.setdefault(col, {}).update({k: float(v) for k, v in (c.get("levels_mm") or {}).items()})
+    for col, v in (gm.get("limits_mm") or {}).items():
+        out.setdefault(col, {"limit": float(v)})
+    for e in gm.get("exceedances", []):
+        out.setdefault(_column(e), {"limit": abs(float(e["limit_mm"]))})
+    return out
+
+
+def _column(e: dict) -> str:
+    """The geometry column an exceedance is on (``check`` is ``<check name>:<column>``)."""
+    return e.get("column") or str(e.get("check", "")).split(":")[-1]
+
+
+def _exceedances(gm: dict) -> list[dict]:
+    """The exceedances in chainage order, each with ``column``, ``from_m`` / ``to_m`` (the peak's
+    chainage for runs that did not write them) and its list label ``E1``, ``E2``, ..."""
+    rows = [dict(e, column=_column(e), from_m=e.get("from_m", e["chainage_m"]), to_m=e.get("to_m", e["chainage_m"]))
+            for e in gm.get("exceedances", [])]
+    rows.sort(key=lambda e: (e["from_m"], e["column"]))
+    return [dict(e, label=f"E{k}") for k, e in enumerate(rows, 1)]
+
+
+def _tolerance_verdict(gm: dict, n_exceedances: int) -> str:
+    """What the tolerance check found, in words: no table given; checks skipped (and why);
+    exceedances or none."""
+    table = gm.get("tolerance_table")
+    skipped = gm.get("skipped_checks") or []
+    checks = gm.get("tolerance_checks")
+    if table is None and not n_exceedances and not gm.get("limits_mm"):
+        return ("<p class='verdict none'>No tolerance table given (<code>geometry.tolerances</code>): "
+                "the geometry was not checked against limits.</p>")
+    parts = []
+    name = f"table <b>{_e(table)}</b>" if table else "the given limits"
+    n_checks = len(checks) if checks is not None else None
+    skipped_names = {s.get("check") for s in skipped}
+    if n_checks is not None and skipped and len(skipped_names) >= n_checks and not n_exceedances:
+        parts.append(f"<p class='verdict none'>Not checked: every check of {name} was skipped.</p>")
+    elif n_exceedances:
+        parts.append(f"<p class='verdict fail'>{n_exceedances} exceedance{'s' if n_exceedances > 1 else ''} of "
+                     f"{name} (list below).</p>")
+    else:
+        done = "" if n_checks is None else f" ({n_checks - len(skipped_names & {c['name'] for c in checks})} of {n_checks} checks made)"
+        parts.append(f"<p class='verdict pass'>No exceedance of {name}{done}.</p>")
+    if skipped:
+        parts.append("<p>Skipped checks:</p><ul>" + "".join(
+            f"<li><b>{_e(s.get('check'))}</b>: {_e(s.get('reason', 'no reason given'))}</li>" for s in skipped)
+            + "</ul>")
+    return "".join(parts)
+
+
+def _exceedance_table(rows: list[dict], figure_of: dict[str, str]) -> str:
+    out = []
+    for e in rows:
+        fig = figure_of.get(e["column"])
+        label = _e(e["label"])
+        link = Raw(f"<a href='#fig-{fig}'>{label}</a>" if fig else label)
+        length = e.get("length_m")
+        level = str(e.get("level", "limit")).replace("_", " ")
+        out.append({"_id": f"exc-{e['label']}", "#": link, "check": str(e.get("check", "")).split(":")[0],
+                    "quantity": column_label(e["column"]) if e["column"] in figure_of else e["column"].replace("_", " "),
+                    "from (m)": num(e["from_m"], 2), "to (m)": num(e["to_m"], 2),
+                    "length (m)": "–" if length is None else num(length, 2),
+                    "peak (mm)": num(e["value_mm"], 2), "at (m)": num(e["chainage_m"], 2), "level": level,
+                    "limit (mm)": num(abs(float(e["limit_mm"])), 2),
+                    **({"pass": str(e["pass_index"])} if "pass_index" in e else {})})
+    return _table(rows=out)
+
+
+def _quality_table(gm: dict) -> str:
+    qi = gm.get("quality_index")
+    if not qi:
+        return ""
+    head = (f"<h3 id='quality-index'>Track quality index: standard deviation per {qi.get('section_m', 200):g} m "
+            "section (EN 13848-6 style, D1)</h3>")
+    if not qi.get("sections"):
+        return head + f"<p>Not computed: {_e(qi.get('not_computed', 'no measured D1 column'))}.</p>"
+    names = list(qi.get("columns", {}))
+    rows = [{"section (m)": f"{s['from_m']:g} – {s['to_m']:g}",
+             **{f"{q} (mm)": "–" if s.get(q) is None else num(s[q], 2) for q in names}} for s in qi["sections"]]
+    note = ("<p class='note'>A section gets a value when at least half of it was measured. "
+            + (f"Not measured: {_e(', '.join(qi['not_measured']))}. " if qi.get("not_measured") else "")
+            + "</p>")
+    return head + _table(rows) + note
+
+
+def _gauge_deviation_mm(run: RunFiles) -> np.ndarray | None:
+    """The gauge minus nominal [mm] when a gauge was measured (None: no gauge sensor, a
+    constant nominal gauge, or an all-NaN column)."""
+    g = run.geometry
+    gm = run.metrics.get("geometry", {})
+    if str(gm.get("gauge", "")).startswith("nominal"):
+        return None
+    if "gauge_variation_mm" in g:
+        dev = np.asarray(g["gauge_variation_mm"], float)
+    elif "gauge_m" in g:
+        nominal = float((run.geometry_meta or {}).get("nominal_gauge_m", NOMINAL_GAUGE_M))
+        dev = (np.asarray(g["gauge_m"], float) - nominal) * 1e3
+    else:
+        return None
+    ok = np.isfinite(dev)
+    return dev if ok.any() and np.ptp(dev[ok]) > 0 else None
+
+
+#: The geometry figures: alt text (and anchor) -> title.
+GEOMETRY_FIGURES = {"irregularities": "irregularities: longitudinal level and alignment (mm)",
+                    "versines": "chord versines (mm)", "cross-level": "cross-level, twist and gauge (mm)"}
+
+
+def _geometry_panels(run: RunFiles) -> dict[str, list[str]]:
+    """The columns drawn in each geometry figure (measured ones only), by figure alt text."""
+    g = run.geometry
+    cols = {"irregularities": [c for c in IRREGULARITY_COLUMNS if c in g],
+            "versines": [c for c in g if _VERSINE.match(c)],
+            "cross-level": [c for c in g if c == "cross_level_mm" or _TWIST.match(c)]}
+    return {k: measured(g, v) for k, v in cols.items()}
 
 
 def geometry_section(run: RunFiles) -> str:
@@ -240,40 +398,51 @@ def geometry_section(run: RunFiles) -> str:
     if g is None:
         return ""
     gm = run.metrics.get("geometry", {})
-    limits = _geometry_limits(gm)
-    exceedances = gm.get("exceedances", [])
+    levels = _levels_by_column(gm)
+    exceedances = _exceedances(gm)
     s = g["chainage_m"]
-    parts = []
-    unmeasured: list[str] = []
-    irr = _measured({c: g[c] for c in IRREGULARITY_COLUMNS if c in g}, unmeasured)
-    if irr:
-        parts.append(_run_img(run, "irregularities", lambda: figures.series_with_bands(
-            s, irr, limits, "irregularities (mm)", exceedances)))
-    versines = _measured({c: g[c] for c in g if _VERSINE.match(c)}, unmeasured)
-    if versines:
-        parts.append(_run_img(run, "versines", lambda: figures.series_with_bands(
-            s, versines, limits, "chord versines (mm)", exceedances)))
-    level = {c: g[c] for c in g if c == "cross_level_mm" or _TWIST.match(c)}
-    if "gauge_m" in g:
-        nominal = float((run.geometry_meta or {}).get("nominal_gauge_m", NOMINAL_GAUGE_M))
-        level[f"gauge_minus_{nominal * 1e3:g}_mm"] = (g["gauge_m"] - nominal) * 1e3
-    level = _measured(level, unmeasured)
-    if unmeasured:  # said, not drawn: an empty or copied curve would look like data
-        why = sorted(set((gm.get("not_measured") or {}).values())) or ["no finite value"]
-        parts.append(f"<p class=\"not-measured\">Not measured ({_e('; '.join(why))}): "
-                     f"{_e(', '.join(sorted(set(unmeasured))))}.</p>")
-    if level:
-        parts.append(_run_img(run, "cross-level", lambda: figures.series_with_bands(
-            s, level, limits, "cross-level, twist and gauge (mm)", exceedances)))
-    facts = [("chainage", f"{s.min():.2f} m to {s.max():.2f} m"), ("step", gm.get("step_m")),
-             ("length", gm.get("length_m")),
-             ("tolerances (mm)", {k: v for k, v in limits.items()} or "none given")]
-    parts.append(_kv(facts))
+    panels = _geometry_panels(run)
+    gauge = _gauge_deviation_mm(run)
+    candidates = [c for c in IRREGULARITY_COLUMNS if c in g] + [c for c in g if _VERSINE.match(c)]
+    not_measured = [c for c in candidates if c not in panels["irregularities"] + panels["versines"]]
+    figure_of = {c: alt for alt, cols in panels.items() for c in cols}
+    if gauge is not None:
+        figure_of["gauge_variation_mm"] = "cross-level"
+    parts = [_tolerance_verdict(gm, len(exceedances))]
+    for alt, title in GEOMETRY_FIGURES.items():
+        series = {c: np.asarray(g[c], float) for c in panels[alt]}
+        if alt == "cross-level" and gauge is not None:
+            series["gauge_variation_mm"] = gauge
+        if not series:
+            continue
+        labels = {c: f"{column_label(c)} ({column_unit(c) or 'mm'})" for c in series}
+        if "gauge_variation_mm" in series:
+            nominal = float((run.geometry_meta or {}).get("nominal_gauge_m", NOMINAL_GAUGE_M))
+            labels["gauge_variation_mm"] = f"gauge minus {nominal * 1e3:g} mm (mm)"
+
+        def draw(series=series, labels=labels, title=title, alt=alt):
+            fig, spots = figures.series_with_bands(s, series, levels, title, exceedances, labels)
+            return _img(fig, alt, spots)
+
+        if alt not in run.images:
+            run.images[alt] = draw()
+        parts.append(run.images[alt])
+    if not_measured or gauge is None:
+        gauge_note = ["gauge (no gauge sensor: nominal gauge used)"] if gauge is None else []
+        parts.append("<p class='note'>Not measured (not drawn): "
+                     + _e(", ".join([column_label(c) for c in not_measured] + gauge_note)) + ".</p>")
+    facts = [("chainage", f"{num(float(np.nanmin(s)), 2)} m to {num(float(np.nanmax(s)), 2)} m"),
+             ("grid step", f"{gm['step_m']:g} m" if "step_m" in gm else None),
+             ("chainage from", gm.get("chainage")), ("irregularities against", gm.get("irregularity_reference")),
+             ("gauge from", gm.get("gauge")), ("passes", gm.get("passes")),
+             ("tolerance table", gm.get("tolerance_table") or "none given")]
+    parts.append(_kv([(k, v) for k, v in facts if v is not None]))
     if exceedances:
-        parts.append(f"<h3>Exceedances ({len(exceedances)})</h3>"
-                     + _table(exceedances, ["check", "chainage_m", "value_mm", "limit_mm"]))
-    else:
-        parts.append("<p>No tolerance exceedance.</p>")
+        parts.append(f"<h3 id='exceedances'>Exceedances ({len(exceedances)})</h3>"
+                     "<p class='note'>Each shaded stretch on the plots links to its row; # links back to the plot. "
+                     "From / to: the first and last sample beyond the mildest level; level: the highest the "
+                     "peak reaches.</p>" + _exceedance_table(exceedances, figure_of))
+    parts.append(_quality_table(gm))
     return _section("geometry", "Track geometry", "".join(parts))
 
 
@@ -292,7 +461,7 @@ def time_sync_section(m: dict) -> str:
     ts = m.get("time_sync")
     if not ts:
         return ""
-    rows = [{"station": sid, "offset_s (station minus IMU clock)": e.get("offset_s"), "r_max": e.get("r_max")}
+    rows = [{"station": sid, "offset, station minus IMU clock (s)": e.get("offset_s"), "r_max": e.get("r_max")}
             for sid, e in sorted(ts.items())]
     return _section("time-sync", "Time synchronisation of the total stations",
                     _img(figures.time_sync_curves(ts), "time synchronisation") + _table(rows))
@@ -356,7 +525,8 @@ table{border-collapse:collapse;margin:8px 0;font-size:0.85em}th,td{border:1px so
 text-align:left}thead th{background:#f6f8fa}table.kv th{background:#f6f8fa;width:16em}
 img{max-width:100%;height:auto;display:block;margin:8px 0}.note{color:#57606a;font-size:0.85em}
 .verdict{font-weight:bold;padding:8px 12px;border-radius:6px}.pass{background:#dafbe1;color:#116329}
-.fail{background:#ffebe9;color:#a40e26}nav a{margin-right:12px}
+.fail{background:#ffebe9;color:#a40e26}.none{background:#fff8c5;color:#633c01}nav a{margin-right:12px}
+tr:target{background:#fff8c5}code{font-size:0.9em}
 """
 
 

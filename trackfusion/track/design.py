@@ -12,7 +12,8 @@ heading in ``n``:
 - ``arc``: constant curvature ``1 / radius_m`` (positive radius curves left)
   with cant ``cant_mm`` raising the outer rail;
 - ``clothoid``: curvature and cant change linearly from the previous element's
-  values to the next element's (a transition).
+  values to the next element's (a transition); ``start_radius_m`` /
+  ``end_radius_m`` fix its end curvatures instead (``.inf``: straight).
 
 Heading is the integral of curvature (piecewise quadratic, exact) and the
 position the integral of (cos, sin) of the heading, by 16-point
@@ -23,7 +24,12 @@ vertical curve of ``curve_length_m`` (or ``radius_m``) at each inner PVI.
 
 Cant ``cant_m`` is signed: height of the left rail minus the right rail over
 the cant base (1.5 m for standard gauge). The track frame ``t`` is rolled by
-``cant_rad = asin(cant_m / cant_base_m)`` (positive: left side up).
+``cant_rad = asin(cant_m / cant_base_m)`` (positive: left side up). Instead of
+the arcs' ``cant_mm``, ``cant_stations`` may give the cant at chainages (linear
+between them), as a LandXML design does.
+
+The same :class:`AlignmentConfig` comes from a YAML ``alignment:`` section or a
+LandXML 1.2 file (``landxml.py``).
 """
 
 from __future__ import annotations
@@ -45,12 +51,16 @@ class _Strict(BaseModel):
 
 
 class HorizontalElement(_Strict):
-    """One horizontal element (see the module docstring)."""
+    """One horizontal element (see the module docstring). A clothoid may give its end radii
+    explicitly (``start_radius_m``, ``end_radius_m``: signed like ``radius_m``, ``.inf`` for a
+    straight end); an end left out follows the neighbouring element."""
 
     type: Literal["tangent", "clothoid", "arc"]
-    length_m: float = Field(gt=0)
-    radius_m: float | None = None
-    cant_mm: float = Field(0.0, ge=0)
+    length_m: float = Field(gt=0, allow_inf_nan=False)
+    radius_m: float | None = Field(None, allow_inf_nan=False)
+    cant_mm: float = Field(0.0, ge=0, allow_inf_nan=False)
+    start_radius_m: float | None = None
+    end_radius_m: float | None = None
 
     @model_validator(mode="after")
     def _radius(self) -> "HorizontalElement":
@@ -58,6 +68,11 @@ class HorizontalElement(_Strict):
             raise ValueError("an arc needs a non-zero radius_m")
         if self.type != "arc" and (self.radius_m is not None or self.cant_mm != 0):
             raise ValueError(f"a {self.type} takes no radius_m or cant_mm (they follow its neighbours)")
+        ends = [r for r in (self.start_radius_m, self.end_radius_m) if r is not None]
+        if ends and self.type != "clothoid":
+            raise ValueError(f"a {self.type} takes no start_radius_m or end_radius_m")
+        if any(np.isnan(r) or r == 0 for r in ends):
+            raise ValueError("start_radius_m and end_radius_m must be non-zero (.inf for a straight end)")
         return self
 
 
@@ -85,12 +100,33 @@ class Vertical(_Strict):
     pvis: list[Pvi] = Field(min_length=1)
 
 
+class CantStation(_Strict):
+    """Applied cant ``cant_mm`` (>= 0) raising ``raised_rail`` at design chainage ``chainage_m``."""
+
+    chainage_m: float = Field(allow_inf_nan=False)
+    cant_mm: float = Field(ge=0, allow_inf_nan=False)
+    raised_rail: Literal["left", "right"]
+
+
 class AlignmentConfig(_Strict):
-    """A whole design alignment."""
+    """A whole design alignment. Cant comes either from the arcs' ``cant_mm`` (ramped over the
+    clothoids) or from ``cant_stations`` (linear between stations in increasing chainage, constant
+    before the first and after the last), not both."""
 
     horizontal: Horizontal
     vertical: Vertical = Vertical(pvis=[Pvi(chainage_m=0.0, u_m=0.0)])
     cant_base_m: float = Field(1.5, gt=0)
+    cant_stations: list[CantStation] | None = Field(None, min_length=1)
+
+    @model_validator(mode="after")
+    def _one_cant_source(self) -> "AlignmentConfig":
+        if self.cant_stations is None:
+            return self
+        if any(e.cant_mm != 0 for e in self.horizontal.elements):
+            raise ValueError("give cant either as the arcs' cant_mm or as cant_stations, not both")
+        if any(b.chainage_m <= a.chainage_m for a, b in zip(self.cant_stations, self.cant_stations[1:])):
+            raise ValueError("cant_stations: chainages must increase")
+        return self
 
 
 @dataclass
@@ -131,11 +167,16 @@ class DesignAlignment:
         xy0 = np.array([h.start_e_m, h.start_n_m]) + np.concatenate([[[0.0, 0.0]], np.cumsum(ends, axis=0)[:-1]])
         self._xy0 = xy0
         self._vertical = _VerticalProfile(config.vertical, self.length_m)
+        # cant stations: (chainage [m], signed cant [m], left rail minus right)
+        self._cant_stations = None if config.cant_stations is None else (
+            np.array([c.chainage_m for c in config.cant_stations]),
+            np.array([(1.0 if c.raised_rail == "left" else -1.0) * c.cant_mm / 1000.0 for c in config.cant_stations]))
 
     @staticmethod
     def _element_end_values(elements: list[HorizontalElement]) -> tuple[np.ndarray, np.ndarray]:
         """(M, 2) curvature [1/m] and cant [m] at the start and end of each element."""
         own_k = [1.0 / e.radius_m if e.type == "arc" else 0.0 for e in elements]
+        explicit = [(e.start_radius_m, e.end_radius_m) for e in elements]
         # outer rail raised: a left curve (k > 0) raises the right rail -> negative cant
         own_c = [-np.sign(1.0 / e.radius_m) * e.cant_mm / 1000.0 if e.type == "arc" else 0.0 for e in elements]
         k = np.zeros((len(elements), 2))
@@ -149,7 +190,8 @@ class DesignAlignment:
             next_k = own_k[i + 1] if i + 1 < len(elements) and elements[i + 1].type != "clothoid" else 0.0
             prev_c = own_c[i - 1] if i > 0 and elements[i - 1].type != "clothoid" else 0.0
             next_c = own_c[i + 1] if i + 1 < len(elements) and elements[i + 1].type != "clothoid" else 0.0
-            k[i] = prev_k, next_k
+            r0, r1 = explicit[i]
+            k[i] = prev_k if r0 is None else 1.0 / r0, next_k if r1 is None else 1.0 / r1
             c[i] = prev_c, next_c
         return k, c
 
@@ -194,7 +236,8 @@ class DesignAlignment:
         heading = self._heading(i, u)
         frac = u / self._lengths[i]
         kappa = self._k0[i] + (self._k1[i] - self._k0[i]) * frac
-        cant = self._c0[i] + (self._c1[i] - self._c0[i]) * frac
+        cant = self._c0[i] + (self._c1[i] - self._c0[i]) * frac if self._cant_stations is None else \
+            np.interp(s, *self._cant_stations)
         z, dz, ddz = self._vertical.evaluate(s)
         slope = np.arctan(dz)
         cant_rad = np.arcsin(np.clip(cant / self.config.cant_base_m, -1.0, 1.0))

@@ -10,7 +10,7 @@ follow the geometry.csv contract (docs/geometry.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -23,6 +23,7 @@ from ..evaluation.repeatability import repeatability
 from . import irregularities as irr
 from .chainage import curvature_matched_chainage, project_onto_design, regrid
 from .design import DesignAlignment
+from .quality import SECTION_M, quality_index
 from .shortwave import deformation_index, detect_defects, merge_defects, spatial_spectrum
 from .traces import RailTraces, TrolleyGeometry, rail_traces
 from .versines import chord_indicator, chord_offsets
@@ -74,17 +75,71 @@ class GeometryConfig(_Strict):
     deformation_index: DeformationIndexConfig = DeformationIndexConfig()
 
 
+#: EN 13848-5 style levels of a check, mildest first: alert (plan maintenance), intervention
+#: (correct within a set time), immediate action (restrict or stop traffic).
+LEVELS = ("alert", "intervention", "immediate_action")
+
+#: Geometry columns of a ``kind: limit`` check's quantity (``L``: its ``length_m`` as ``%g``).
+LIMIT_COLUMNS = {
+    "vertical_versine": lambda L: [f"{r}_vertical_versine_{L}m_mm" for r in RAILS],
+    "lateral_versine": lambda L: [f"{r}_lateral_versine_{L}m_mm" for r in RAILS],
+    "longitudinal_level": lambda L: [f"{r}_vertical_mm" for r in RAILS],
+    "alignment": lambda L: [f"{r}_lateral_mm" for r in RAILS],
+    "twist": lambda L: [f"twist_{L}m_mm"],
+    "cross_level": lambda L: ["cross_level_mm"],
+    "gauge_variation": lambda L: ["gauge_variation_mm"],
+}
+
+
 @dataclass(frozen=True)
 class ToleranceCheck:
-    """One check of a tolerance table (see the YAML files in ``trackfusion/data/tolerances``)."""
+    """One check of a tolerance table (see the YAML files in ``trackfusion/data/tolerances``).
+
+    A check gives one ``limit_mm``, or EN 13848-5 style levels ``alert_mm``, ``intervention_mm``,
+    ``immediate_action_mm`` (any of them, increasing; ``limit_mm`` then defaults to the mildest)."""
 
     name: str
     kind: str
-    limit_mm: float
+    limit_mm: float | None = None
     quantity: str | None = None
     length_m: float | None = None
     chord_m: float | None = None
     spacing_m: float | None = None
+    alert_mm: float | None = None
+    intervention_mm: float | None = None
+    immediate_action_mm: float | None = None
+
+    def levels(self) -> list[tuple[str, float]]:
+        """(level name, limit [mm]) mildest first: the EN 13848-5 style levels given, else
+        ``[("limit", limit_mm)]``."""
+        given = [(lv, float(getattr(self, f"{lv}_mm"))) for lv in LEVELS if getattr(self, f"{lv}_mm") is not None]
+        return given or [("limit", float(self.limit_mm))]
+
+    def threshold_mm(self) -> float:
+        """The value beyond which a stretch is an exceedance [mm]: the mildest level."""
+        return self.levels()[0][1]
+
+    def columns(self) -> list[str]:
+        """The geometry columns a ``kind: limit`` check applies to."""
+        L = fmt_length(self.length_m) if self.length_m is not None else ""
+        return LIMIT_COLUMNS[self.quantity](L)
+
+
+def _check_tolerance(c: ToleranceCheck, source: str) -> None:
+    if c.kind not in ("limit", "chord_indicator"):
+        raise ConfigError(f"{source}: check {c.name}: unknown kind {c.kind!r}")
+    if c.kind == "limit" and c.quantity not in LIMIT_COLUMNS:
+        raise ConfigError(f"{source}: check {c.name}: unknown quantity {c.quantity!r} "
+                          f"(one of {', '.join(LIMIT_COLUMNS)})")
+    levels = [getattr(c, f"{lv}_mm") for lv in LEVELS if getattr(c, f"{lv}_mm") is not None]
+    if c.limit_mm is None and not levels:
+        raise ConfigError(f"{source}: check {c.name}: needs limit_mm or alert_mm / intervention_mm / "
+                          "immediate_action_mm")
+    values = ([c.limit_mm] if c.limit_mm is not None else []) + levels
+    if any(not isinstance(v, (int, float)) or not v > 0 for v in values):
+        raise ConfigError(f"{source}: check {c.name}: limits must be positive numbers of mm")
+    if any(b <= a for a, b in zip(levels, levels[1:])):
+        raise ConfigError(f"{source}: check {c.name}: alert_mm < intervention_mm < immediate_action_mm must increase")
 
 
 def load_tolerances(name_or_path: str, base_dir: Path | None = None) -> tuple[str, list[ToleranceCheck]]:
@@ -107,11 +162,8 @@ def load_tolerances(name_or_path: str, base_dir: Path | None = None) -> tuple[st
     except (KeyError, TypeError) as exc:
         raise ConfigError(f"{source}: invalid tolerance table ({exc})") from None
     for c in checks:
-        if c.kind not in ("limit", "chord_indicator"):
-            raise ConfigError(f"{source}: check {c.name}: unknown kind {c.kind!r}")
-        if c.kind == "limit" and c.quantity not in ("vertical_versine", "lateral_versine", "twist", "cross_level",
-                                                     "gauge_variation"):
-            raise ConfigError(f"{source}: check {c.name}: unknown quantity {c.quantity!r}")
+        _check_tolerance(c, source)
+    checks = [c if c.limit_mm is not None else replace(c, limit_mm=c.threshold_mm()) for c in checks]
     return str(data.get("name", name_or_path)), checks
 
 
@@ -237,30 +289,35 @@ def not_measured_without_gauge(table: dict[str, np.ndarray], other_rail: str) ->
             if c in ("gauge_m", "gauge_variation_mm") or c.startswith(f"{other_rail}_lateral")}
 
 
-def _check_columns(check: ToleranceCheck) -> list[str]:
-    """The geometry.csv columns a limit check reads (none for a chord-indicator check)."""
-    if check.kind != "limit":
-        return []
-    L = fmt_length(check.length_m) if check.length_m is not None else ""
-    return {"vertical_versine": [f"{r}_vertical_versine_{L}m_mm" for r in RAILS],
-            "lateral_versine": [f"{r}_lateral_versine_{L}m_mm" for r in RAILS],
-            "twist": [f"twist_{L}m_mm"], "cross_level": ["cross_level_mm"],
-            "gauge_variation": ["gauge_variation_mm"]}[check.quantity]
-
-
-def _limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck) -> list[dict]:
+def limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck, step_m: float) -> list[dict]:
+    """Exceedances of a ``kind: limit`` check on the columns it applies to that were measured."""
     out = []
-    for col in _check_columns(check):
-        out += _stretches(table["chainage_m"], table[col], check.limit_mm, f"{check.name}:{col}")
+    for col in check.columns():
+        if col in table and np.isfinite(table[col]).any():
+            out += _stretches(table["chainage_m"], table[col], check, col, step_m)
     return out
 
 
-def _stretches(s: np.ndarray, value_mm: np.ndarray, limit_mm: float, check: str, merge_m: float = 1.0) -> list[dict]:
-    """One exceedance per stretch of ``|value| > limit`` (its peak)."""
+def _unmeasured(table: dict[str, np.ndarray], check: ToleranceCheck) -> list[str]:
+    """Columns of a ``kind: limit`` check the table lacks or holds no finite value of."""
+    return [c for c in check.columns() if c not in table or not np.isfinite(table[c]).any()]
+
+
+def _stretches(s: np.ndarray, value_mm: np.ndarray, check: ToleranceCheck, column: str, step_m: float,
+               merge_m: float = 1.0) -> list[dict]:
+    """One exceedance per stretch of ``|value|`` beyond the check's mildest level (stretches closer
+    than ``merge_m`` are one): ``check`` (``<check name>:<column>``), ``column``, ``from_m`` /
+    ``to_m`` (first and last sample beyond it), ``length_m`` (their distance plus one sample
+    step), the peak's ``chainage_m`` and signed ``value_mm``, and the ``level`` its peak reaches
+    with that level's ``limit_mm``."""
+    levels = check.levels()
+    limits = np.array([lim for _, lim in levels])
     out = []
-    for d in detect_defects(s, value_mm, limit_mm, merge_m):
-        out.append({"check": check, "chainage_m": d.chainage_m, "value_mm": d.peak_di_deg_per_m,
-                    "limit_mm": float(limit_mm)})
+    for d in detect_defects(s, value_mm, levels[0][1], merge_m):
+        k = int(np.searchsorted(limits, abs(d.peak_di_deg_per_m), side="left")) - 1
+        out.append({"check": f"{check.name}:{column}", "column": column, "from_m": d.start_m, "to_m": d.end_m,
+                    "length_m": float(d.end_m - d.start_m + step_m), "chainage_m": d.chainage_m,
+                    "value_mm": d.peak_di_deg_per_m, "level": levels[k][0], "limit_mm": float(limits[k])})
     return out
 
 
@@ -272,7 +329,7 @@ def _indicator_exceedances(tr: RailTraces, design_track, design_s, check: Tolera
             ind = chord_indicator(tr.chainage_m, tr.rail(side), ref, check.chord_m, check.spacing_m, comp)
             dv = 1e3 * ind.delta_v_m.ravel()
             sc = ind.pair_chainage_m.ravel()
-            out += _stretches(sc, dv, check.limit_mm, f"{check.name}:{side}_{comp}", check.spacing_m)
+            out += _stretches(sc, dv, check, f"{side}_{comp}", check.spacing_m, check.spacing_m)
     return out
 
 
@@ -329,11 +386,14 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
     for t in tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
         t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
     exceedances: list[dict] = []
-    skipped: list[dict] = [{"check": f"{c.name}:{col}", "reason": f"{col} not measured: {not_measured[col]}"}
-                           for c in checks for col in _check_columns(c) if col in not_measured]
+    skipped: list[dict] = []
     for c in checks:
         if c.kind == "limit":
-            exceedances += _limit_exceedances(table, c)
+            missing = _unmeasured(table, c)
+            if missing:
+                skipped.append({"check": c.name, "columns": missing,
+                                "reason": f"not measured ({', '.join(missing)})"})
+            exceedances += limit_exceedances(table, c, step_m)
         elif design is None:
             skipped.append({"check": c.name, "reason": "needs a design alignment (inputs.design)"})
         elif not any(np.ptp(tr.chainage_m) >= c.chord_m for tr in used):
@@ -344,8 +404,8 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
                             for e in _indicator_exceedances(tr, design_track, ds, c)
                             if not (not_measured and e["check"] == f"{c.name}:{trolley.other_rail}_lateral")]
             if not_measured:
-                skipped.append({"check": f"{c.name}:{trolley.other_rail}_lateral",
-                                "reason": f"{trolley.other_rail} rail lateral not measured: {NO_GAUGE}"})
+                skipped.append({"check": c.name, "columns": [f"{trolley.other_rail}_lateral"],
+                                "reason": f"not measured ({trolley.other_rail}_lateral: {NO_GAUGE})"})
     di_series, di_defects = [], []
     if pitch_rate_radps is not None and cfg.deformation_index.enabled:
         dcfg = cfg.deformation_index
@@ -372,10 +432,14 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
         "not_measured": not_measured,
         "tolerance_table": tolerances[0] if tolerances else None,
-        "checks": [c.name for c in checks],
+        "tolerance_checks": [{"name": c.name, "kind": c.kind,
+                              "columns": c.columns() if c.kind == "limit" else [f"{r}_{comp}" for r in RAILS
+                                                                                 for comp in ("vertical", "lateral")],
+                              "levels_mm": dict(c.levels())} for c in checks],
         "exceedances": exceedances,
         "skipped_checks": skipped,
     }
+    metrics["quality_index"] = _quality_index(table, cfg, design is not None, step_m)
     if method == "curvature_matching":
         metrics["curvature_matching_anchors"] = [[{"s_app_m": a, "chainage_m": d} for a, d in p] for p in anchors]
     if di_series:
@@ -392,6 +456,24 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
     table.pop("t_s", None)
     units = _units(table)
     return GeometryResult(table, units, metrics, tables, used, di_series)
+
+
+def _quality_index(table: dict[str, np.ndarray], cfg: GeometryConfig, with_design: bool, step_m: float) -> dict:
+    """EN 13848-6 style quality index (:func:`.quality.quality_index`) of the D1 longitudinal level
+    and alignment of both rails: the D1 columns (``<rail>_<vertical|lateral>_D1_mm``), or the main
+    irregularity columns when they are the D1 band; none when no D1 column was computed."""
+    columns = {}
+    for side in RAILS:
+        for comp, qty in (("vertical", "longitudinal level"), ("lateral", "alignment")):
+            d1 = f"{side}_{comp}_D1_mm"
+            main = f"{side}_{comp}_mm"
+            col = d1 if d1 in table else main if not with_design and cfg.irregularity_band == "D1" else None
+            if col is not None:
+                columns[f"{side} {qty}"] = col
+    if not columns:
+        return {"section_m": SECTION_M, "columns": {}, "sections": [],
+                "not_computed": "no D1 irregularity column (add D1 to geometry.extra_bands)"}
+    return quality_index(table, step_m, columns)
 
 
 def _chainage_method(cfg: GeometryConfig, design: DesignAlignment | None, absolute_positions: bool) -> str:
@@ -432,8 +514,16 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
 
 
 def load_design(path: Path) -> DesignAlignment:
-    """A design alignment from a YAML file holding an ``alignment:`` section (a scenario YAML
-    works) or the alignment mapping itself."""
+    """A design alignment, by the file's suffix: ``.xml`` / ``.landxml`` a LandXML 1.2 file
+    (:func:`.landxml.read_landxml`), ``.yaml`` / ``.yml`` a YAML file holding an ``alignment:``
+    section (a scenario YAML works) or the alignment mapping itself."""
+    from .landxml import read_landxml
+    suffix = path.suffix.lower()
+    if suffix in (".xml", ".landxml"):
+        return DesignAlignment(read_landxml(path))
+    if suffix not in (".yaml", ".yml"):
+        raise ConfigError(f"{path}: unknown design file type {suffix or '(no suffix)'!r} "
+                          "(.xml / .landxml: LandXML 1.2; .yaml / .yml: YAML)")
     from ..yamlio import load_yaml
     data = load_yaml(path, "design alignment")
     if isinstance(data, dict) and "alignment" in data:

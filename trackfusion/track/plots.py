@@ -8,6 +8,45 @@ renders one to PNG bytes (the report writes the files).
 from __future__ import annotations
 
 import io
+import re
+
+import numpy as np
+
+_IRREGULARITY = re.compile(r"^(left|right)_(vertical|lateral)(?:_(D[123]))?_mm$")
+_VERSINE = re.compile(r"^(left|right)_(vertical|lateral)_versine_([0-9.eE+-]+)m_mm$")
+_TWIST = re.compile(r"^twist_([0-9.eE+-]+)m_mm$")
+_WORDS = {"vertical": "longitudinal level", "lateral": "alignment"}
+_OTHER = {"cross_level_mm": "cross-level", "gauge_variation_mm": "gauge deviation from nominal",
+          "gauge_m": "gauge", "di_deg_per_m": "deformation index"}
+
+
+def column_label(name: str) -> str:
+    """A geometry column's quantity in words, without its unit (``left_vertical_mm`` -> ``left
+    longitudinal level``, ``twist_3m_mm`` -> ``twist, 3 m base``); unknown names are returned
+    with underscores as spaces and the unit suffix dropped."""
+    if m := _IRREGULARITY.match(name):
+        return f"{m[1]} {_WORDS[m[2]]}" + (f" {m[3]}" if m[3] else "")
+    if m := _VERSINE.match(name):
+        return f"{m[1]} {m[2]} versine, {m[3]} m chord"
+    if m := _TWIST.match(name):
+        return f"twist, {m[1]} m base"
+    if name in _OTHER:
+        return _OTHER[name]
+    return re.sub(r"_(mm|m|s|deg_per_m)$", "", name).replace("_", " ")
+
+
+def column_unit(name: str) -> str:
+    """The unit of a geometry column from its name's suffix (``mm``, ``m``, ``deg/m``, ``s``)."""
+    for suffix, unit in (("_deg_per_m", "deg/m"), ("_mm", "mm"), ("_m", "m"), ("_s", "s")):
+        if name.endswith(suffix):
+            return unit
+    return ""
+
+
+def measured(table: dict, names) -> list[str]:
+    """The columns of ``names`` the table holds with at least one finite value (all-NaN columns are
+    not measured and are not drawn)."""
+    return [c for c in names if c in table and np.isfinite(np.asarray(table[c], dtype=float)).any()]
 
 
 def _figure(rows: int, height: float = 2.4):
@@ -38,13 +77,13 @@ def irregularities_figure(table: dict, limits_mm: dict[str, float] | None = None
             ("cross_level", ["cross_level_mm"])] + ([("twist", twist_cols[:1])] if twist_cols else [])
     fig, axes = _figure(len(rows))
     for ax, (qty, cols) in zip(axes, rows):
-        for c in cols:
-            ax.plot(s, table[c], lw=0.7, label=c)
+        for c in measured(table, cols):
+            ax.plot(s, table[c], lw=0.7, label=column_label(c))
         _band(ax, limits.get(qty))
-        ax.set_ylabel("mm")
+        ax.set_ylabel(f"{qty.replace('_', '-')} (mm)")
         ax.legend(loc="upper right", fontsize=7)
         ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("chainage [m]")
+    axes[-1].set_xlabel("chainage (m)")
     if title:
         fig.suptitle(title)
     return fig
@@ -55,14 +94,13 @@ def versines_figure(table: dict, chord_m: float, limit_mm: float | None = None, 
     s = table["chainage_m"]
     fig, axes = _figure(2)
     for ax, comp in zip(axes, ("vertical", "lateral")):
-        for r in ("left", "right"):
-            col = f"{r}_{comp}_versine_{chord_m:g}m_mm"
-            ax.plot(s, table[col], lw=0.7, label=col)
+        for col in measured(table, [f"{r}_{comp}_versine_{chord_m:g}m_mm" for r in ("left", "right")]):
+            ax.plot(s, table[col], lw=0.7, label=column_label(col))
         _band(ax, limit_mm)
-        ax.set_ylabel(f"{comp} [mm]")
+        ax.set_ylabel(f"{comp} versine (mm)")
         ax.legend(loc="upper right", fontsize=7)
         ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("chainage [m]")
+    axes[-1].set_xlabel("chainage (m)")
     fig.suptitle(title or f"{chord_m:g} m chord versines")
     return fig
 
@@ -77,8 +115,8 @@ def deformation_index_figure(table: dict, di_metrics: dict, title: str = "Deform
         ax.axvline(d["chainage_m"], color="tab:red", alpha=0.5, lw=1)
         ax.annotate(f"{d['peak_di_deg_per_m']:.1f}", (d["chainage_m"], d["peak_di_deg_per_m"]), fontsize=7,
                     color="tab:red")
-    ax.set_xlabel("chainage [m]")
-    ax.set_ylabel("DI [deg/m]")
+    ax.set_xlabel("chainage (m)")
+    ax.set_ylabel("deformation index (deg/m)")
     ax.legend(loc="upper right", fontsize=7)
     ax.grid(alpha=0.3)
     fig.suptitle(title)
@@ -93,8 +131,8 @@ def spectrum_figure(spectra: dict, title: str = "Spatial spectrum"):
         line, = ax.loglog(sp.wavelength_m, sp.psd, lw=0.8, label=label)
         for lam in sp.dominant_m[:3]:
             ax.axvline(lam, color=line.get_color(), lw=0.6, ls=":")
-    ax.set_xlabel("wavelength [m]")
-    ax.set_ylabel("PSD [unit^2 m]")
+    ax.set_xlabel("wavelength (m)")
+    ax.set_ylabel("power spectral density (unit² m)")
     ax.invert_xaxis()
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3, which="both")
