@@ -233,7 +233,7 @@ def _set(path, value):
     (_set(["sensors", "imu", "rate_hz"], "fast"), ["sensors.imu.rate_hz"]),
     (_set(["factors", "nhc"], {"sigma_mm_per_s": float("inf")}), ["factors.nhc.sigma_mm_per_s", "finite"]),
     (_set(["origin", "lat_deg"], "42 N"), ["origin.lat_deg"]),
-    (_set(["trolley", "lever_arm_imu_v_m"], [0, 1]), ["trolley.lever_arm_imu_v_m"]),
+    (_set(["vehicle", "lever_arm_imu_v_m"], [0, 1]), ["vehicle.lever_arm_imu_v_m"]),
     (_set(["sensors", "imu", "grade"], ["navigation"]), ["sensors.imu", "unknown grade"]),
     (_set(["sensors", "imu", "rate_hz"], 500.0), ["sensors.imu.rate_hz", "500 Hz", "runs at 200 Hz"]),
     (_set(["inputs", "allow_truncated"], "sometimes"), ["inputs.allow_truncated"]),

@@ -36,6 +36,7 @@ def gnss_only_run(tmp_path_factory):
     simulate_to_dir("open-track-gnss", d, seed=5, overrides=SHORT)
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
     data["factors"]["odometer"] = False
+    data["factors"]["wheel_path"] = False  # it needs the odometer (refused on, not dropped)
     data["factors"]["nhc"] = False
     return d, run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / "out")
 

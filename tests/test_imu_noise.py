@@ -111,3 +111,15 @@ def test_run_uses_the_estimate_where_the_datasheet_is_off(tmp_path):
     assert est["gyro_arw_deg_per_sqrt_h"]["value"] == pytest.approx(0.003, rel=0.03)
     assert est["gyro_arw_deg_per_sqrt_h"]["ratio_to_datasheet"] == pytest.approx(3.0, rel=0.03)
     assert any("sensors.imu.gyro_arw_deg_per_sqrt_h" in m and "uses the estimate" in m for m in said)
+
+
+def test_noise_free_static_data_keep_the_datasheet():
+    """An ideal log's still periods hold no noise: the estimate is reported (0) and not used."""
+    from trackfusion.pipeline import _imu_spec_from_data
+
+    spec = IMU_GRADES["navigation"]
+    t = np.arange(0.0, 40.0, 1.0 / spec.rate_hz)
+    imu = ImuData(t, np.tile([0.0, 5e-5, 4e-5], (t.size, 1)), np.tile([0.0, 0.0, 9.81], (t.size, 1)))
+    est = estimate_imu_noise(imu, [(0.0, 40.0)], spec)
+    assert est.gyro_arw_deg_per_sqrt_h.value < 1e-20  # rounding of the constant samples
+    assert _imu_spec_from_data(spec, est, 1.5) == (spec, [])

@@ -331,3 +331,94 @@ def test_sensor_times_to_imu_clock_round_trip():
         sensor_times_to_imu_clock(np.array([np.nan]))
     with pytest.raises(ConfigError):
         sensor_times_to_imu_clock(t_imu, drift_ppm=-1e6)
+
+
+# --- static periods from the IMU alone, any grade ----------------------------------------------
+
+def _grade_imu(t, grade, still_f_b, rng, noise_free=False):
+    """A still IMU of a named grade: the specific force ``still_f_b`` and the Earth rate, with the
+    grade's datasheet white noise (per-sample sigma = density / sqrt(dt)), its turn-on biases."""
+    from trackfusion.sensors.imu import DEG, G0_MPS2, IMU_GRADES
+    spec = IMU_GRADES[grade]
+    rate = 1.0 / (t[1] - t[0])
+    f = np.tile(still_f_b, (t.size, 1)) + spec.accel_bias_ug * 1e-6 * G0_MPS2
+    w = np.tile(EARTH_RATE_B_RADPS, (t.size, 1)) + spec.gyro_bias_deg_per_h * DEG / 3600.0
+    if not noise_free:
+        f = f + rng.standard_normal(f.shape) * spec.accel_vrw_mps_per_sqrt_h / 60.0 * np.sqrt(rate)
+        w = w + rng.standard_normal(w.shape) * spec.gyro_arw_deg_per_sqrt_h * DEG / 60.0 * np.sqrt(rate)
+    return ImuData(t, w, f), spec
+
+
+def _smooth_run(t, rng, grade, noise_free):
+    """60 s still, a raised-cosine start to 3 m/s, 10 minutes on a 0.5 % grade without
+    vibration (quiet to any IMU, but not the rest's specific force), a stop, 60 s still."""
+    from trackfusion.sensors.imu import DEG, IMU_GRADES
+    segments = [(60, 0.0), (15, 3.0), (600, 3.0), (15, 0.0), (60, 0.0)]
+    _, a, _ = trolley(t, segments)
+    pitch = 0.005 * np.clip(np.minimum(t - 90.0, 660.0 - t) / 10.0, 0.0, 1.0)  # on a grade while moving
+    imu, spec = _grade_imu(t, grade, np.zeros(3), rng, noise_free)
+    imu.accel_mps2[:, 0] += a + G_MPS2 * np.sin(pitch)
+    imu.accel_mps2[:, 2] += G_MPS2 * np.cos(pitch)
+    return imu, spec
+
+
+@pytest.mark.parametrize("grade", ["navigation", "navigation-500", "fog", "mems-tactical"])
+@pytest.mark.parametrize("noise_free", [True, False])
+def test_static_from_the_imu_alone_on_any_grade(grade, noise_free):
+    """The still ends of a run whose motion is smooth (quiet for minutes, the specific force of
+    a grade, not of rest) are found from the IMU alone, with the pipeline's thresholds from the
+    grade's datasheet noise and the rate; the motion between is not taken for the rest (the
+    long cruise looks static to any IMU: its start and stop are not in it)."""
+    from trackfusion.fusion.settings import StaticSettings
+    from trackfusion.sensors.imu import IMU_GRADES
+    rate = IMU_GRADES[grade].rate_hz
+    t = np.arange(0.0, 750.0, 1.0 / rate)
+    imu, spec = _smooth_run(t, np.random.default_rng(11), grade, noise_free)
+    gyro_deg, accel = StaticSettings().thresholds(spec.gyro_arw_deg_per_sqrt_h, spec.accel_vrw_mps_per_sqrt_h, rate)
+    intervals = detect_static_intervals(imu, gyro_std_radps=np.radians(gyro_deg), accel_std_mps2=accel)
+    v, a_true, _ = trolley(t, [(60, 0.0), (15, 3.0), (600, 3.0), (15, 0.0), (60, 0.0)])
+    first, last = intervals[0], intervals[-1]
+    # the start's acceleration (0.0175 m/s^2 x s^2 of its onset) shows once it passes the accel
+    # threshold: 1.1 s (FOG), 1.6 s (MEMS) into the motion, at 1 cm/s and 2.5 cm/s
+    assert first[0] == 0.0 and 57.0 < first[1] < 62.0, intervals
+    assert 688.0 < last[0] < 693.0 and last[1] == t[-1], intervals
+    for a, b in (first, last):
+        assert np.max(np.abs(v[(t >= a) & (t <= b)])) < 0.05  # MEMS: a start shows later
+    for a, b in intervals[1:-1]:  # the cruise (constant speed), and a start's peak to a MEMS
+        inside = (t >= a) & (t <= b)
+        if grade != "mems-tactical":
+            assert np.min(v[inside]) > 2.5, intervals
+        # what no IMU tells from rest: a constant specific force (the MEMS thresholds, 0.047 m/s^2,
+        # hold the raised cosine's 0.4 m/s^2 peak for 2.4 s; GNSS must exclude such intervals)
+        assert np.ptp(a_true[inside]) < accel and np.ptp(v[inside]) > 0 or np.min(v[inside]) > 2.5
+
+
+@pytest.mark.parametrize("grade", ["navigation", "fog", "mems-tactical"])
+def test_static_still_imu_is_static_throughout(grade):
+    """A still IMU, level or tilted, noise-free or noisy: one interval, the whole record."""
+    from trackfusion.fusion.settings import StaticSettings
+    rng = np.random.default_rng(12)
+    for noise_free in (True, False):
+        for f_b in (np.array([0.0, 0.0, G_MPS2]), G_MPS2 * np.array([0.1, -0.2, np.sqrt(1 - 0.05)])):
+            imu, spec = _grade_imu(np.arange(0.0, 120.0, 1.0 / 200.0), grade, f_b, rng, noise_free)
+            gyro_deg, accel = StaticSettings().thresholds(spec.gyro_arw_deg_per_sqrt_h,
+                                                          spec.accel_vrw_mps_per_sqrt_h, 200.0)
+            assert detect_static_intervals(imu, gyro_std_radps=np.radians(gyro_deg),
+                                           accel_std_mps2=accel) == [(0.0, imu.t_s[-1])]
+
+
+def test_slow_constant_speed_is_excluded_by_gnss():
+    """A noise-free IMU on a slow (5 cm/s), constant-speed, straight, level stretch between two
+    stands reads exactly as at rest; the fixes (1 Hz, 1 cm) through the interval exclude it, and
+    keep the stands."""
+    t = np.arange(0.0, 200.0, 1 / 200.0)
+    segments = [(40, 0.0), (10, 0.05), (100, 0.05), (10, 0.0), (40, 0.0)]
+    v, a, d = trolley(t, segments)
+    f = np.column_stack([a, np.zeros(t.size), np.full(t.size, G_MPS2)])
+    imu = ImuData(t, np.tile(EARTH_RATE_B_RADPS, (t.size, 1)), f)
+    intervals = detect_static_intervals(imu)
+    assert len(intervals) == 3 and intervals[1][0] < 50.0 and intervals[1][1] > 150.0  # the cruise looks static
+    t_fix = np.arange(0.0, 200.0, 1.0)
+    pos = np.column_stack([np.interp(t_fix, t, d), np.zeros(t_fix.size), np.zeros(t_fix.size)])
+    pos += 0.01 * np.random.default_rng(13).standard_normal(pos.shape)
+    assert moving_intervals_by_gnss(intervals, t_fix, pos, np.full(pos.shape, 0.01)) == [1]

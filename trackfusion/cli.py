@@ -54,6 +54,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_init(args: argparse.Namespace) -> int:
+    from .init import init_pipeline
+
+    print(init_pipeline(args.log, args.out, kind=args.vehicle, imu_grade=args.imu_grade, sets=args.set or [],
+                        force=args.force, progress=_progress).format())
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .demo import run_demo
 
@@ -190,6 +198,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("log")
     s.add_argument("--out", required=True, help="output folder")
     s.set_defaults(func=_cmd_export)
+
+    from .sensors.imu import IMU_GRADES
+    from .vehicles import VEHICLE_KINDS
+    s = sub.add_parser("init", help="write a runnable, commented pipeline YAML for a log (docs/init.md)")
+    s.add_argument("log", help="raw log")
+    s.add_argument("--out", required=True, help="pipeline YAML to write (not overwritten without --force)")
+    s.add_argument("--vehicle", choices=VEHICLE_KINDS, default="trolley", help="what carries the IMU (default trolley)")
+    s.add_argument("--imu-grade", choices=list(IMU_GRADES), default=None,
+                   help="the IMU's datasheet grade (default: the log's record, else navigation)")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="a pipeline key (dotted, e.g. sensors.gnss.lever_arm_b_m=[0.1,0.3,0.2]; YAML value), repeatable")
+    s.add_argument("--force", action="store_true", help="overwrite an existing --out")
+    s.set_defaults(func=_cmd_init)
 
     s = sub.add_parser("run", help="process a survey with a pipeline YAML", parents=[force])
     s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")

@@ -1,7 +1,7 @@
 """Pipeline: the YAML a survey is processed with, and ``run`` (``trackfusion run``).
 
-A pipeline YAML (docs/pipeline.md) names the raw log, the origin of ``n``, the trolley
-geometry, the sensor specifications and lever arms, the factors and their noise, the
+A pipeline YAML (docs/pipeline.md) names the raw log, the origin of ``n``, the vehicle
+(trackfusion/vehicles.py), the sensor specifications and lever arms, the factors and their noise, the
 keyframe spacing and the outputs. Every section refuses unknown keys, and every error
 names the file and the field path. Paths are relative to the YAML file's folder.
 
@@ -28,7 +28,7 @@ from .errors import ConfigError, FusionError, TrackfusionError, config_error_fro
 from .fusion import faults, input_checks, preprocess
 from .fusion.imu_noise import estimate_imu_noise
 from .fusion.preintegration import ImuNoise
-from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame
+from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame  # noqa: F401 (TrolleyFrame: trackfusion.pipeline's)
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.densify_forked import start_densify_forked
 from .fusion.segments import smooth_in_segments, worker_count
@@ -41,8 +41,10 @@ from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
+from .sensor_use import decide_sensor_use, summary_lines as sensor_summary_lines
 from .sensors.types import InclinometerData, OdometerData, SensorLog
 from .track.geometry import GeometryConfig
+from .vehicles import MAX_SPEED_MPS, TrolleyVehicle, VehicleConfig, error_location, frame_of, vehicle_section
 
 Vec3 = tuple[float, float, float]
 
@@ -68,15 +70,8 @@ class OriginConfig(_Strict):
     h_m: float = 0.0
 
 
-class TrolleyConfig(_Strict):
-    """Trolley geometry: wheelbase of the reference-rail wheels, IMU origin in ``v`` and the
-    mounting angles of ``b`` in ``v`` (yaw, pitch, roll)."""
-
-    wheelbase_m: float = Field(gt=0)
-    reference_rail: Literal["left", "right"] = "left"
-    lever_arm_imu_v_m: Vec3
-    mounting_ypr_deg: Vec3 = (0.0, 0.0, 0.0)
-    odometer_wheel: Literal["rear", "front"] = "rear"
+#: the older ``trolley:`` section's model (``vehicle: {kind: trolley}``, trackfusion/vehicles.py)
+TrolleyConfig = TrolleyVehicle
 
 
 class ImuConfig(ImuSpec):
@@ -158,7 +153,7 @@ class PipelineConfig(_Strict):
     description: str = ""
     inputs: InputsConfig
     origin: OriginConfig | None = None
-    trolley: TrolleyConfig
+    vehicle: VehicleConfig  # the older trolley: reads as vehicle: {kind: trolley, ...}
     sensors: SensorsConfig
     factors: FactorSettings = FactorSettings()
     keyframes: KeyframeSettings = KeyframeSettings()
@@ -166,6 +161,11 @@ class PipelineConfig(_Strict):
     smoother: SmootherSettings = SmootherSettings()
     outputs: OutputsConfig = OutputsConfig()
     geometry: GeometryConfig = GeometryConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _vehicle(cls, data: Any) -> Any:
+        return vehicle_section(data)
 
 
 @dataclass
@@ -188,10 +188,21 @@ def parse_pipeline(data: Any, source: str, base_dir: Path) -> Pipeline:
     try:
         config = PipelineConfig.model_validate(data)
     except ValidationError as exc:
-        raise config_error_from_validation(exc, source) from None
+        raise config_error_from_validation(_UserPaths(exc, "trolley" in data), source) from None
     pipeline = Pipeline(config, base_dir, source)
     _check_inputs(pipeline)
     return pipeline
+
+
+@dataclass
+class _UserPaths:
+    """A validation error whose field paths are as written (trackfusion/vehicles.py: error_location)."""
+
+    exc: ValidationError
+    wrote_trolley: bool
+
+    def errors(self) -> list[dict]:
+        return [{**e, "loc": error_location(e["loc"], self.wrote_trolley)} for e in self.exc.errors()]
 
 
 def load_pipeline(path: str | os.PathLike) -> Pipeline:
@@ -214,8 +225,10 @@ def _check_inputs(pipeline: Pipeline) -> None:
         raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
                           "or set factors.total_stations: false)")
     from .track.geometry import check_geometry_inputs
+    from .vehicles import check_vehicle_support
+    check_vehicle_support(cfg, src)  # factors and geometry the vehicle's kind supports
     check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
-    if cfg.factors.gnss.enabled and cfg.sensors.gnss is None:
+    if cfg.factors.gnss.enabled and "gnss" in cfg.factors.model_fields_set and cfg.sensors.gnss is None:
         raise ConfigError(f"{src}: sensors.gnss: missing (needed by factors.gnss; or set factors.gnss: false)")
 
 
@@ -283,13 +296,18 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     imu_spec = sensors.imu.spec()
     # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
     src = str(pipeline.path(cfg.inputs.log))
-    use_gnss = log.gnss is not None and sensors.gnss is not None and fs.gnss.enabled
-    use_odometer = log.odometer is not None and sensors.odometer is not None and fs.odometer.enabled
-    use_inclinometer = log.inclinometer is not None and sensors.inclinometer is not None and fs.inclinometer.enabled
+    # the sensors fused: every switched-on factor's topic in the log (trackfusion/sensor_use.py)
+    used = decide_sensor_use(cfg, log, pipeline.source, src)
+    info.update(used.to_json())
+    for line in used.defaulted + [f"{u['topic']} in the log, not used: {u['reason']}" for u in used.unused]:
+        say(line)
+    use_gnss, use_odometer, use_inclinometer = used.use["gnss"], used.use["odometer"], used.use["inclinometer"]
+    clocks = used.clocks
     input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use_gnss else None,
                            odometer=log.odometer if use_odometer else None,
-                           inclinometer=log.inclinometer if use_inclinometer else None)
-    gnss = GnssFixes.from_data(log.gnss, origin, sensors.gnss.lever_arm_b_m, sensors.gnss.clock_offset_s) \
+                           inclinometer=log.inclinometer if use_inclinometer else None,
+                           max_speed_mps=MAX_SPEED_MPS[cfg.vehicle.kind], vehicle=cfg.vehicle.kind)
+    gnss = GnssFixes.from_data(log.gnss, origin, clocks["gnss"].lever_arm_b_m, clocks["gnss"].clock_offset_s) \
         if use_gnss else None
     info["clock_jumps"] = []
     if gnss is not None:
@@ -298,7 +316,7 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     # --- end issue 8
     if use_odometer:
         odo = log.odometer
-        t = preprocess.sensor_times_to_imu_clock(odo.t_s, sensors.odometer.clock_offset_s)
+        t = preprocess.sensor_times_to_imu_clock(odo.t_s, clocks["odometer"].clock_offset_s)
         t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # issue 8
         info["clock_jumps"] += jumps
         odometer, repaired = preprocess.repair_odometer(OdometerData(t, odo.distance_m, odo.ticks),
@@ -336,29 +354,34 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     inclinometer = None
     if use_inclinometer:
         inc = log.inclinometer
-        t = preprocess.sensor_times_to_imu_clock(inc.t_s, sensors.inclinometer.clock_offset_s)
+        t = preprocess.sensor_times_to_imu_clock(inc.t_s, clocks["inclinometer"].clock_offset_s)
         t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)  # issue 8
         info["clock_jumps"] += jumps
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
-    tr = cfg.trolley
     problem = FusionProblem(
         imu=log.imu, imu_noise=ImuNoise.from_spec(imu_spec), imu_gyro_bias_deg_per_h=imu_spec.gyro_bias_deg_per_h,
-        origin=origin, trolley=TrolleyFrame.from_angles(tr.mounting_ypr_deg, tr.lever_arm_imu_v_m, tr.wheelbase_m,
-                                                        tr.odometer_wheel),
+        origin=origin, trolley=frame_of(cfg.vehicle),
         static_intervals_s=static, factors=fs, keyframes=cfg.keyframes, smoother=cfg.smoother,
         odometer=odometer, gnss=gnss, inclinometer=inclinometer)
     return problem, info
 
 
+#: an IMU noise estimate below this fraction of the datasheet's is no sensor's but a noise-free log's
+NOISE_FREE_RATIO = 1e-3
+
+
 def _imu_spec_from_data(spec: ImuSpec, est, tolerance: float) -> tuple[ImuSpec, list[str]]:
     """``spec`` with the white-noise densities the static data estimate (``est``, an
     :class:`~trackfusion.fusion.imu_noise.ImuNoiseEstimate`) where they differ from the
-    datasheet by more than the factor ``tolerance``; returns it and the keys replaced."""
+    datasheet by more than the factor ``tolerance`` (not below :data:`NOISE_FREE_RATIO` of it);
+    returns it and the keys replaced."""
     replaced = {}
     for key in ("gyro_arw_deg_per_sqrt_h", "accel_vrw_mps_per_sqrt_h"):
         term = est.terms()[key]
         ratio = term.ratio()
-        if term.value is not None and (ratio is None or not 1.0 / tolerance <= ratio <= tolerance):
+        if term.value is None or (ratio is not None and ratio < NOISE_FREE_RATIO):
+            continue  # no noise in the static data (a noise-free, simulated log): the datasheet stays
+        if ratio is None or not 1.0 / tolerance <= ratio <= tolerance:
             replaced[key] = term.value
     return (spec.model_copy(update=replaced) if replaced else spec), sorted(replaced)
 
@@ -741,6 +764,7 @@ def format_summary(result: RunResult) -> str:
              f"  {m['imu_samples']} IMU samples, {m['duration_s']:.0f} s, {m['keyframes']} keyframes, "
              f"{sum(m['factors'].values())} factors, {m['iterations']} iterations",
              "  time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in t.items())]
+    lines += sensor_summary_lines(m)  # sensors used with defaults, sensors not used
     if m.get("rejected_gnss"):
         lines.append(f"  rejected GNSS fixes: {len(m['rejected_gnss'])}")
     if m.get("faults"):  # issue 8: docs/robustness.md

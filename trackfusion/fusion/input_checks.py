@@ -147,19 +147,21 @@ def check_static_gyro_units(imu: ImuData, spec: ImuSpec, rest_intervals_s: list[
             "angular_velocity not in rad/s?")
 
 
-def check_odometer_units(odometer: OdometerData, source: str, gnss_path_m: float | None = None) -> None:
-    """Odometer speed over 1 s no faster than a trolley (30 m/s), and, when the GNSS path is longer
-    than 50 m, the odometer path between half and twice it (``gnss_path_m`` [m])."""
+def check_odometer_units(odometer: OdometerData, source: str, gnss_path_m: float | None = None,
+                         max_speed_mps: float = MAX_TROLLEY_SPEED_MPS, vehicle: str = "trolley") -> None:
+    """Odometer speed over 1 s no faster than the vehicle (``max_speed_mps``, a trolley's 30 m/s by
+    default), and, when the GNSS path is longer than 50 m, the odometer path between half and
+    twice it (``gnss_path_m`` [m])."""
     t, d = odometer.t_s, odometer.distance_m
     if t.size < 2:
         return
     j = np.minimum(np.searchsorted(t, t + 1.0), t.size - 1)
     ok = j > np.arange(t.size)
     speed = np.abs(d[j] - d)[ok] / (t[j] - t)[ok]
-    if speed.size and speed.max() > MAX_TROLLEY_SPEED_MPS:
+    if speed.size and speed.max() > max_speed_mps:
         i = int(np.flatnonzero(ok)[int(np.argmax(speed))])
         raise SensorDataError(f"{source}: /odometer record {i}: {speed.max():.4g} m/s over 1 s is faster than a "
-                              f"trolley ({MAX_TROLLEY_SPEED_MPS:g} m/s): distance_m not in metres?")
+                              f"{vehicle} ({max_speed_mps:g} m/s): distance_m not in metres?")
     path_m = float(np.abs(np.diff(d)).sum())
     if gnss_path_m is not None and gnss_path_m > 50.0 and not 0.5 < path_m / gnss_path_m < 2.0:
         raise SensorDataError(f"{source}: /odometer: path length {path_m:.6g} m against {gnss_path_m:.6g} m of "
@@ -203,9 +205,11 @@ def check_inclinometer_units(inc: InclinometerData, source: str) -> None:
 
 def check_log(imu: ImuData, spec: ImuSpec, origin, source: str, pipeline_source: str, *,
               gnss: GnssData | None = None, odometer: OdometerData | None = None,
-              inclinometer: InclinometerData | None = None) -> None:
+              inclinometer: InclinometerData | None = None, max_speed_mps: float = MAX_TROLLEY_SPEED_MPS,
+              vehicle: str = "trolley") -> None:
     """Every check above on the sensors a pipeline uses (None: not used); ``origin``: the
-    :class:`~trackfusion.geodesy.Origin` of ``n``."""
+    :class:`~trackfusion.geodesy.Origin` of ``n``; ``max_speed_mps``: the fastest the ``vehicle``
+    (its kind, for the message) goes."""
     check_imu_saturation(imu, spec, source)
     check_imu_units(imu, spec, source, pipeline_source)
     pos_n = None
@@ -218,6 +222,7 @@ def check_log(imu: ImuData, spec: ImuSpec, origin, source: str, pipeline_source:
         pos_n = geodesy.geodetic_to_n(gnss.lat_deg, gnss.lon_deg, gnss.h_m, origin)
         check_gnss(gnss, pos_n, source)
     if odometer is not None:
-        check_odometer_units(odometer, source, gnss_path_length_m(pos_n) if pos_n is not None else None)
+        check_odometer_units(odometer, source, gnss_path_length_m(pos_n) if pos_n is not None else None,
+                             max_speed_mps, vehicle)
     if inclinometer is not None:
         check_inclinometer_units(inclinometer, source)

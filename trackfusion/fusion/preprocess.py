@@ -139,21 +139,45 @@ class _CentredCumsum:
         return self.rows_
 
 
-def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
-    """Windows (K,) whose mean of ``x`` (N, 3) lies within ``threshold`` (vector norm) of the median
-    window mean of their run of quiet windows (``quiet`` (K,)); windows outside a run are True.
+def _locally_steady(m: np.ndarray, half: int, threshold: float) -> np.ndarray:
+    """Windows (K,) whose mean ``m`` (K, 3) varies by less than ``threshold`` on every axis over
+    the ``half`` windows either side (sliding maximum minus minimum, scipy.ndimage: O(K))."""
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+    size = 2 * half + 1
+    spread = maximum_filter1d(m, size, axis=0, mode="nearest") - minimum_filter1d(m, size, axis=0, mode="nearest")
+    return np.all(spread < threshold, axis=1)
 
-    A trolley at rest measures a constant specific force and rate; one that starts or stops
+
+def _steady_means(x: np.ndarray, n: int, quiet: np.ndarray, threshold: float) -> np.ndarray:
+    """Windows (K,) of steady mean ``x`` (N, 3) inside the runs of quiet windows (``quiet`` (K,));
+    windows outside a run are True.
+
+    A vehicle at rest measures a constant specific force and rate; one that starts or stops
     accelerates, which moves the mean specific force by the acceleration long before the
     vibration of rolling shows in the standard deviation of the norm (a raised-cosine start of
-    0.4 m/s^2 reaches 5 mm/s^2 within 0.6 s, at 1 mm/s). The median is the rest value as long as
-    less than half a run is motion. (Window means only inside the runs.)"""
+    0.4 m/s^2 reaches 5 mm/s^2 within 0.6 s, at 1 mm/s). Two tests, both needed:
+
+    * locally steady: the window mean varies by less than ``threshold`` over one window length
+      either side (:func:`_locally_steady`). This cuts a quiet run at every start and stop,
+      however long the motion between them is. A smooth motion without vibration (a
+      noise-free log, a good track) stays quiet for minutes; the median of such a run is the
+      motion's, not the rest's, and the rest periods at its ends were lost to it.
+    * within ``threshold`` (vector norm) of the median window mean of its locally steady piece:
+      a slow drift of the mean that no single window sees (a creeping start) is caught as
+      long as less than half the piece is motion.
+
+    (Window means only inside the runs.)"""
     c = _CentredCumsum(x)
     steady = np.ones(quiet.size, dtype=bool)
     for a, b in zip(*_true_runs(quiet)):
         rows = c.rows(a, b + n + 1)  # c[a .. b + n]
         m = (rows[n:] - rows[:-n]) / n + c.med
-        steady[a:b + 1] = np.linalg.norm(m - np.median(m, axis=0), axis=1) < threshold
+        local = _locally_steady(m, n, threshold)
+        ok = np.zeros(m.shape[0], dtype=bool)
+        for p, q in zip(*_true_runs(local)):
+            piece = m[p:q + 1]
+            ok[p:q + 1] = np.linalg.norm(piece - np.median(piece, axis=0), axis=1) < threshold
+        steady[a:b + 1] = ok
     return steady
 
 
@@ -166,8 +190,9 @@ def detect_static_intervals(imu: ImuData, odometer: OdometerData | None = None, 
     A moving window of ``n = round(window_s / dt)`` IMU samples (``dt`` the median sample step)
     is *quiet* when the standard deviation of the gyro norm is below ``gyro_std_radps``, that of
     the accelerometer norm below ``accel_std_mps2``, the window's mean gyro and accelerometer
-    vectors lie within the same thresholds of the median window mean of their quiet run (a start
-    or stop is an acceleration: :func:`_steady_means`) and, with an odometer, the odometer speed over
+    vectors vary by less than the same thresholds over a window length either side and lie within
+    them of the median window mean of their steady piece (a start or stop is an acceleration:
+    :func:`_steady_means`; this needs no odometer and no vibration) and, with an odometer, the odometer speed over
     the window ``|d(t_last) - d(t_first)| / (t_last - t_first)`` below ``max_odometer_speed_mps``.
     A window holding a data gap (spanning more than 1.5 times its nominal duration) or reaching
     more than one odometer step outside the odometer's time span is never quiet. A sample is static when every window that

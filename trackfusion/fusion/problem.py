@@ -17,25 +17,32 @@ from .settings import FactorSettings, KeyframeSettings, SmootherSettings
 
 @dataclass(frozen=True)
 class TrolleyFrame:
-    """Where things sit on the trolley.
+    """Where things sit on the vehicle (the pipeline's ``vehicle:``, trackfusion/vehicles.py).
 
     R_vb (3,3): mounting rotation ``b`` to ``v``; lever_arm_imu_v (3,) [m]: IMU origin in ``v``
-    (``v``'s origin is midway between the reference-rail wheel contacts); wheelbase_m [m];
-    odometer_wheel: ``"rear"`` or ``"front"`` reference-rail wheel.
+    (``v``'s origin is the point of zero lateral and vertical velocity: on a trolley midway
+    between the reference-rail wheel contacts); wheelbase_m [m] (0 for a road vehicle);
+    odometer_wheel: ``"rear"`` or ``"front"`` reference-rail wheel; kind: ``trolley``,
+    ``rail-vehicle`` or ``road-vehicle``; odometer_point_v (3,) [m] or None: where the odometer
+    measures in ``v``, when not a reference-rail wheel (a road vehicle).
     """
 
     R_vb: np.ndarray
     lever_arm_imu_v: np.ndarray
     wheelbase_m: float
     odometer_wheel: str = "rear"
+    kind: str = "trolley"
+    odometer_point_v: np.ndarray | None = None
 
     @classmethod
     def from_angles(cls, mounting_ypr_deg, lever_arm_imu_v_m, wheelbase_m: float,
-                    odometer_wheel: str = "rear") -> "TrolleyFrame":
+                    odometer_wheel: str = "rear", kind: str = "trolley",
+                    odometer_point_v=None) -> "TrolleyFrame":
         """From mounting (yaw, pitch, roll) [deg] of ``b`` in ``v``."""
         y, p, r = np.radians(np.asarray(mounting_ypr_deg, dtype=float))
+        point = None if odometer_point_v is None else np.asarray(odometer_point_v, dtype=float)
         return cls(R_from_ypr(y, p, r), np.asarray(lever_arm_imu_v_m, dtype=float), float(wheelbase_m),
-                   odometer_wheel)
+                   odometer_wheel, kind, point)
 
     def lever_arm_b(self, point_v: np.ndarray) -> np.ndarray:
         """Vector (3,) [m] in ``b`` from the IMU origin to a point given in ``v``."""
@@ -48,13 +55,15 @@ class TrolleyFrame:
 
     @property
     def wheel_lever_arm_b(self) -> np.ndarray:
-        """IMU to the odometer wheel's rail contact."""
+        """IMU to the odometer wheel's rail contact (or to ``odometer_point_v``)."""
+        if self.odometer_point_v is not None:
+            return self.lever_arm_b(self.odometer_point_v)
         sign = -1.0 if self.odometer_wheel == "rear" else 1.0
         return self.lever_arm_b(np.array([sign * 0.5 * self.wheelbase_m, 0.0, 0.0]))
 
     @property
     def axis_b(self) -> np.ndarray:
-        """The trolley's x axis (along the rails) in ``b``."""
+        """The vehicle's x axis (forward; along the rails) in ``b``."""
         return self.R_vb.T @ np.array([1.0, 0.0, 0.0])
 
 

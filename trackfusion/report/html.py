@@ -233,7 +233,7 @@ def summary_section(run: RunFiles) -> str:
                    f"{_e(m.get('reference', ''))}.</p>")
     settings = ""
     if config:
-        keep = {k: config[k] for k in ("factors", "keyframes", "static", "smoother", "outputs", "trolley")
+        keep = {k: config[k] for k in ("factors", "keyframes", "static", "smoother", "outputs", "vehicle", "trolley")
                 if k in config}
         settings = f"<details><summary>settings (pipeline configuration)</summary>{_kv(_flatten(keep))}</details>"
     return _section("summary", "Run summary", verdict + _kv(rows) + settings)

@@ -397,7 +397,7 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
         "name": cfg.name,
         "inputs": {"log": "log.mcap", "reference": "truth.csv"},
         "origin": sim.origin.to_dict(),
-        "trolley": {"wheelbase_m": cfg.trolley.wheelbase_m, "reference_rail": cfg.trolley.reference_rail,
+        "vehicle": {"kind": "trolley", "wheelbase_m": cfg.trolley.wheelbase_m, "reference_rail": cfg.trolley.reference_rail,
                     "lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
                     "mounting_ypr_deg": list(cfg.trolley.mounting_ypr_deg),
                     "odometer_wheel": cfg.trolley.odometer_wheel},

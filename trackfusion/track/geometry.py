@@ -553,7 +553,7 @@ def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gaug
     if not g.enabled:
         return None
     tf = problem.trolley
-    trolley = TrolleyGeometry(tf.R_vb, tf.lever_arm_imu_v, tf.wheelbase_m, cfg.trolley.reference_rail)
+    trolley = TrolleyGeometry(tf.R_vb, tf.lever_arm_imu_v, tf.wheelbase_m, cfg.vehicle.reference_rail)
     # the IMU samples of the dense times (every sample, or every k-th one after chunked smoothing)
     gyro = problem.imu.gyro_radps[np.searchsorted(problem.imu.t_s, dense.t_s)]
     bias = np.column_stack([np.interp(dense.t_s, res.t_s, res.gyro_bias_radps[:, k]) for k in range(3)])
