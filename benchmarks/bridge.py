@@ -41,7 +41,7 @@ TARGETS = {"clock_ms": 2.0, "tilt_north_axis_arcsec": 0.5, "round_trip_std_mm": 
 
 def simulated(seed: int) -> Path:
     from trackfusion.simulation.scenarios import simulate_to_dir
-    out = CACHE / f"bridge-total-station-{seed}"
+    out = CACHE / f"bridge-total-station-{seed}-ros2"  # (the raw log with CDR topics)
     if not (out / "pipeline.yaml").is_file():
         simulate_to_dir("bridge-total-station", out, seed=seed)
     return out

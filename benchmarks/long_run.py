@@ -53,7 +53,7 @@ print(json.dumps({"peak_rss_mb": %s}))
 
 def simulated(passes: int) -> Path:
     from trackfusion.simulation.scenarios import simulate_to_dir
-    out = CACHE / f"long-500hz-{passes}passes"
+    out = CACHE / f"long-500hz-{passes}passes-ros2"  # (the raw log with CDR topics)
     if not (out / "pipeline.yaml").is_file():
         simulate_to_dir("open-track-gnss", out, seed=21, progress=print, overrides=[
             "imu.grade=navigation-500", "imu.rate_hz=500", "gnss.rate_hz=0.2", f"motion.passes={passes}",

@@ -26,7 +26,7 @@ CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 def simulated(passes: int) -> Path:
     """Folder of the cached 500 Hz simulation (made on first use)."""
     from trackfusion.simulation.scenarios import simulate_to_dir
-    out = CACHE / f"speed-500hz-{passes}passes"
+    out = CACHE / f"speed-500hz-{passes}passes-ros2"  # (the raw log with CDR topics)
     if not (out / "pipeline.yaml").is_file():
         simulate_to_dir("open-track-gnss", out, seed=11,
                         overrides=["imu.rate_hz=500", f"motion.passes={passes}"], progress=print)

@@ -127,7 +127,7 @@ def _foreign(path: Path, log, edit):
     """Rewrite ``log`` with the mcap library, one message at a time through ``edit(topic, i, t_ns,
     payload) -> (topic_schema, t_ns, payload)``, so records the writer would refuse can be made."""
     tmp = path.with_name("canonical.mcap")
-    write_log(tmp, log)
+    write_log(tmp, log, encoding="json")  # JSON records, edited as text
     from mcap.reader import make_reader
     with open(tmp, "rb") as fh:
         msgs = [(c.topic, s.name, m.log_time, m.data.decode()) for s, c, m in make_reader(fh).iter_messages()]

@@ -100,7 +100,20 @@ def test_mcap_library_reads_our_file_with_index_and_crcs(tmp_path):
         assert summary.statistics.message_count == 3000 + 1500 + 5 + 10 + 3 + 750 + 750
         assert {c.topic for c in summary.channels.values()} == {
             "/imu", "/odometer", "/gnss", "/total_station/TS01", "/total_station/TS02", "/inclinometer", "/gauge"}
-        assert {s.name: s.encoding for s in summary.schemas.values()}["trackfusion.Imu"] == "jsonschema"
+        encodings = {s.name: s.encoding for s in summary.schemas.values()}
+        assert encodings["sensor_msgs/msg/Imu"] == encodings["trackfusion_msgs/msg/OdometerDistance"] == "ros2msg"
+        assert {c.topic: c.message_encoding for c in summary.channels.values()}["/imu"] == "cdr"
+        # the ROS 2 topics decode with mcap_ros2's own decoder (what ROS tools and Foxglove do)
+        from mcap_ros2.decoder import DecoderFactory
+        ros = [m for _, _, _, m in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+            topics=["/imu", "/odometer"], log_time_order=False) if hasattr(m, "angular_velocity")]
+        assert np.array_equal([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in ros],
+                              log.imu.gyro_radps)
+        assert np.array_equal([m.linear_acceleration.z for m in ros], log.imu.accel_mps2[:, 2])
+        assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in ros] == np.rint(
+            log.imu.t_s * 1e9).astype(int).tolist()
+        fh.seek(0)
+        reader = make_reader(fh, validate_crcs=True)
         gauge = [(m.log_time, json.loads(m.data)) for _, _, m in reader.iter_messages(topics=["/gauge"])]
         assert [g["gauge_m"] for _, g in gauge] == log.gauge.gauge_m.tolist()
         assert [t for t, _ in gauge] == np.rint(log.gauge.t_s * 1e9).astype(int).tolist()
@@ -242,9 +255,9 @@ def test_bad_records_name_file_topic_and_record(tmp_path, capsys, topic, schema,
                                              (1523, lambda p: p[:-1]),
                                              (0, lambda p: p.replace('"x":', '"x": ', 1))])
 def test_first_bad_record_index_in_a_long_canonical_topic(tmp_path, bad_index, edit):
-    """The fast canonical path and the general JSON path agree on the exact record."""
+    """A bad record of a long JSON topic (several batches) is named by its exact index."""
     log = small_log(2000)
-    write_log(tmp_path / "ok.mcap", log)
+    write_log(tmp_path / "ok.mcap", log, encoding="json")
     with open(tmp_path / "ok.mcap", "rb") as fh:
         msgs = [(m.log_time, m.data.decode()) for _, _, m in make_reader(fh).iter_messages(topics=["/imu"])]
     msgs[bad_index] = (msgs[bad_index][0], edit(msgs[bad_index][1]))
@@ -258,30 +271,11 @@ def test_first_bad_record_index_in_a_long_canonical_topic(tmp_path, bad_index, e
 
 @pytest.mark.parametrize("number", ["01.5", "+1.5", ".5", "1.", "1e", "-", "1.2.3", "1e2.5", "1e+-2", "-01", "0x1"])
 def test_numbers_that_are_not_json_are_refused_in_the_canonical_layout(tmp_path, number):
-    """numpy would parse some of these; the fast path must refuse exactly what json refuses."""
+    """numpy would parse some of these; the reader refuses exactly what json refuses."""
     payloads = ['{"gauge_m":1.435}'] * 700 + ['{"gauge_m":%s}' % number] + ['{"gauge_m":1.5}'] * 5
     _raw_log(tmp_path / "g.mcap", "/gauge", "trackfusion.Gauge", payloads, range(1, len(payloads) + 1))
     with pytest.raises(SensorDataError, match="/gauge record 700: invalid JSON"):
         read_log(tmp_path / "g.mcap")
-
-
-@settings(max_examples=300, deadline=None)
-@given(st.lists(st.text("0123456789.eE+-", min_size=1, max_size=8), min_size=1, max_size=6))
-def test_json_number_grammar_matches_the_json_module(tokens):
-    """The vectorised parse refuses a text exactly when json.loads refuses one of its tokens, and
-    otherwise gives float() of each, bit for bit."""
-    from trackfusion.sensors.number_parse import parse_numbers
-
-    def is_number(tok):
-        try:
-            return type(json.loads(tok)) in (int, float)
-        except ValueError:
-            return False
-
-    values = parse_numbers(" ".join(tokens).encode())
-    assert (values is not None) == all(map(is_number, tokens))
-    if values is not None:
-        assert values.view(np.int64).tolist() == np.array([float(t) for t in tokens]).view(np.int64).tolist()
 
 
 def test_two_channels_with_one_topic(tmp_path):
@@ -420,7 +414,7 @@ def plain_bytes(tmp_path_factory):
     """A small valid log with uncompressed, unchunked messages and no CRCs: mutations reach the JSON layer."""
     p = tmp_path_factory.mktemp("plain") / "ok.mcap"
     log = small_log(40)
-    write_log(p.with_name("src.mcap"), log)
+    write_log(p.with_name("src.mcap"), log, encoding="json")
     with open(p.with_name("src.mcap"), "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
@@ -475,7 +469,7 @@ def test_decoding_in_batches_while_scanning_is_exact(tmp_path, monkeypatch, bad_
 
     monkeypatch.setattr(mcap_log._RawChannel, "decode_pending", counted)
     log = small_log(2000)
-    write_log(tmp_path / "ok.mcap", log)
+    write_log(tmp_path / "ok.mcap", log, encoding="json")
     if bad_index is None:
         assert_logs_equal(read_log(tmp_path / "ok.mcap"), log)
         assert batches.count("/imu") > 2

@@ -27,12 +27,26 @@ def simulated_log(tmp_path_factory):
     return d / "log.mcap"
 
 
+def _plain(msg) -> dict:
+    """A message decoded by mcap_ros2 as the dict of its JSON counterpart's fields."""
+    if hasattr(msg, "angular_velocity"):
+        return {k: {a: getattr(getattr(msg, k), a) for a in "xyz"} for k in ("angular_velocity", "linear_acceleration")}
+    return {"distance_m": msg.distance_m, "ticks": msg.ticks}
+
+
 def _reference_messages(path) -> dict[str, list[dict]]:
-    """topic -> the decoded JSON messages, by the mcap library and json.loads (no trackfusion code)."""
+    """topic -> the decoded messages, by the mcap library with json.loads or mcap_ros2's CDR
+    decoder (no trackfusion code)."""
+    from mcap_ros2.decoder import DecoderFactory
     out: dict[str, list[dict]] = {}
     with open(path, "rb") as fh:
-        for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append(json.loads(message.data))
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        cdr_topics = [c.topic for c in reader.get_summary().channels.values() if c.message_encoding == "cdr"]
+        for _schema, channel, _message, ros in reader.iter_decoded_messages(cdr_topics, log_time_order=False):
+            out.setdefault(channel.topic, []).append(_plain(ros))
+        for _schema, channel, message in reader.iter_messages(log_time_order=False):
+            if channel.topic not in cdr_topics:
+                out.setdefault(channel.topic, []).append(json.loads(message.data))
     return out
 
 

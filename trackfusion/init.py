@@ -354,10 +354,12 @@ def init_pipeline(log_path: str | os.PathLike, out: str | os.PathLike, kind: str
     if out.exists() and not force:
         raise ConfigError(f"{out}: exists; pass --force to overwrite it")
     parsed = [parse_set(s) for s in sets or []]
-    if not log_path.is_file():
+    from .sensors.ros2 import is_bag, read_bag
+    bag = is_bag(log_path)  # a ROS 2 bag (docs/log_format.md): its topics found as run finds them
+    if not (log_path.is_file() or bag):
         raise ConfigError(f"{log_path}: log not found")
     say(f"reading {log_path}")
-    log = read_log(log_path)
+    log = read_bag(log_path)[0] if bag else read_log(log_path)
     d = draft_pipeline(log, log_path, out, kind, imu_grade, {k for k, _ in parsed})
     for key, value in parsed:
         apply_set(d.data, key, value)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
@@ -53,15 +53,36 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
 
+class TopicsConfig(_Strict):
+    """The ROS 2 bag topic of each role (docs/log_format.md, "ROS 2 bags"); a role not named
+    is found as the bag's only topic of a supported type."""
+
+    imu: str | None = None
+    gnss: str | None = None
+    odometer: str | None = None
+
+
 class InputsConfig(_Strict):
-    """``log``: the raw MCAP log; ``reference``: optional truth/reference trajectory CSV to
-    evaluate against; ``allow_truncated``: run on the readable part of a damaged log;
-    ``design``: optional design alignment (docs/geometry.md)."""
+    """``log``: the raw MCAP log or a ROS 2 bag (MCAP, ``.db3``, rosbag2 folder);
+    ``reference``: optional truth/reference trajectory CSV to evaluate against;
+    ``allow_truncated``: run on the readable part of a damaged log; ``design``: optional design
+    alignment (docs/geometry.md); ``topics``: a bag's topics (read as a bag when given);
+    ``imu_axes``: where the log's IMU x, y, z point (``flu``, ``frd``, ... or a signed
+    permutation matrix; docs/import.md)."""
 
     log: str
     reference: str | None = None
     allow_truncated: bool = False
     design: str | None = None  # design alignment: YAML (``alignment:``) or LandXML 1.2 (.xml), for geometry
+    topics: TopicsConfig | None = None
+    imu_axes: str | tuple[tuple[int, int, int], tuple[int, int, int], tuple[int, int, int]] = "flu"
+
+    @field_validator("imu_axes")
+    @classmethod
+    def _axes(cls, value):
+        from .sensors.imu_axes import axes_matrix
+        axes_matrix(value)  # raises ValueError: a one-line config error naming inputs.imu_axes
+        return value
 
 
 class OriginConfig(_Strict):
@@ -219,7 +240,8 @@ def _check_inputs(pipeline: Pipeline) -> None:
     cfg, src = pipeline.config, pipeline.source
     for field_name in ("log", "reference", "design"):
         value = getattr(cfg.inputs, field_name)
-        if value is not None and not pipeline.path(value).is_file():
+        bag_folder = field_name == "log" and (pipeline.path(value) / "metadata.yaml").is_file()  # a rosbag2 folder
+        if value is not None and not pipeline.path(value).is_file() and not bag_folder:
             raise ConfigError(f"{src}: inputs.{field_name}: file not found: {pipeline.path(value)}")
     if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is None:
         raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
@@ -258,16 +280,24 @@ TRAJECTORY_UNITS = {
 def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> tuple[SensorLog, dict | None]:
     """The log and, when ``inputs.allow_truncated`` kept the readable part of a damaged file, what
     was lost (reported and listed in ``faults.truncated_log``)."""
+    from .sensors import imu_axes, ros2
     from .sensors.mcap_log import read_log_with_damage
     cfg = pipeline.config
     path = pipeline.path(cfg.inputs.log)  # every topic: the fusion's, and fused.mcap carries them all
-    log, damage = read_log_with_damage(path, allow_truncated=cfg.inputs.allow_truncated)
+    if cfg.inputs.topics is not None or ros2.is_bag(path):
+        topics = cfg.inputs.topics.model_dump() if cfg.inputs.topics is not None else None
+        log, damage = ros2.read_bag(path, topics, str(pipeline.source), cfg.inputs.allow_truncated)
+    else:
+        log, damage = read_log_with_damage(path, allow_truncated=cfg.inputs.allow_truncated)
     if damage is not None:
         readable = ", ".join(f"{k} {v}" for k, v in damage["records_readable"].items()) or "no records"
         say(f"warning: {path} is damaged at byte {damage['byte']} ({damage['reason']}); running on the readable "
             f"part ({readable}) because inputs.allow_truncated is set")
     if log.imu is None or log.imu.t_s.size < 2:
         raise FusionError(f"{path}: the log has no /imu records" + (" before the damage" if damage else ""))
+    c_b_s = imu_axes.axes_matrix(cfg.inputs.imu_axes)
+    log.imu = imu_axes.to_body(log.imu, c_b_s)
+    imu_axes.check_imu_frame(log.imu, str(path), c_b_s, "inputs.imu_axes")
     if cfg.outputs.fused_mcap:  # fused.mcap's clock: a bad survey.epoch_utc refused before the computing
         from .sensors.fused import survey_epoch_ns
         survey_epoch_ns(log.metadata, str(path))

@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from ..errors import ConfigError, SensorDataError, config_error_from_validation
 from ..yamlio import load_yaml
 from .fileio import read_json, write_json_atomic, write_text_atomic
+from .imu_axes import axes_matrix, check_imu_frame, rates_from_increments, to_body
 from .mcap_log import read_log, write_log
 from .types import GaugeData, GnssData, ImuData, InclinometerData, OdometerData, SensorLog, TotalStationData
 
@@ -37,6 +38,9 @@ UNITS: dict[str, dict[str, float]] = {
     "time": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
     "rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0, "deg/h": math.pi / 180.0 / 3600.0},
     "accel": {"m/s^2": 1.0, "g": G0_MPS2, "mg": G0_MPS2 * 1e-3},
+    # per-sample increments (an integrating IMU's delta-angle and delta-velocity over its interval)
+    "gyro_increment": {"rad": 1.0, "deg": math.pi / 180.0},
+    "accel_increment": {"m/s": 1.0},
     "length": {"m": 1.0, "mm": 1e-3, "km": 1e3},
     "angle": {"rad": 1.0, "deg": math.pi / 180.0, "gon": math.pi / 200.0},
     "geo_angle": {"deg": 1.0, "rad": 180.0 / math.pi},
@@ -82,8 +86,18 @@ class FileSpec(_Strict):
 
 
 class ImuSpec(FileSpec):
+    """``gyro``/``accel``: rates (rad/s, deg/s, deg/h; m/s^2, g, mg) or per-sample increments
+    (rad, deg; m/s); ``axes``: where the sensor's x, y, z point (three letters from F/B, L/R,
+    U/D, or a 3x3 signed permutation ``C_b_s``; sensors/imu_axes.py)."""
+
     gyro: Cols
     accel: Cols
+    axes: str | tuple[tuple[int, int, int], tuple[int, int, int], tuple[int, int, int]] = "flu"
+
+    @model_validator(mode="after")
+    def _axes(self):
+        axes_matrix(self.axes)
+        return self
 
 
 class OdometerSpec(FileSpec):
@@ -274,10 +288,32 @@ def _whole(table: _Table, values: np.ndarray, column: Column, what: str) -> np.n
     return values.astype(np.int64)
 
 
+def _imu_kind(table: _Table, spec: Cols, rate: str, increment: str, what: str) -> str:
+    """The unit kind of a gyro/accel column set: ``rate`` or, for an increment unit, ``increment``."""
+    if spec.unit is None or spec.unit in UNITS[rate]:
+        return rate
+    if spec.unit in UNITS[increment]:
+        return increment
+    raise SensorDataError(f"{table.path}: {what}: unknown unit {spec.unit!r} (use {', '.join(UNITS[rate])}; "
+                          f"per-sample increments: {', '.join(UNITS[increment])})")
+
+
 def _imu(base: Path, s: ImuSpec) -> ImuData:
+    """The IMU file's samples as rates in the body frame ``b`` (increments divided by each
+    sample's interval; the declared ``axes`` turned into FLU)."""
     t = _Table(base, s)
-    f = _read(t, {"gyro": (s.gyro, "rate", 3), "accel": (s.accel, "accel", 3)})
-    return ImuData(f["t_s"], f["gyro"], f["accel"])
+    gyro_kind = _imu_kind(t, s.gyro, "rate", "gyro_increment", "gyro")
+    accel_kind = _imu_kind(t, s.accel, "accel", "accel_increment", "accel")
+    f = _read(t, {"gyro": (s.gyro, gyro_kind, 3), "accel": (s.accel, accel_kind, 3)})
+    gyro, accel = f["gyro"], f["accel"]
+    if gyro_kind != "rate":
+        gyro = rates_from_increments(f["t_s"], gyro)
+    if accel_kind != "accel":
+        accel = rates_from_increments(f["t_s"], accel)
+    c_b_s = axes_matrix(s.axes)
+    imu = to_body(ImuData(f["t_s"], gyro, accel), c_b_s)
+    check_imu_frame(imu, str(t.path), c_b_s, "imu.axes")
+    return imu
 
 
 def _odometer(base: Path, s: OdometerSpec) -> OdometerData:

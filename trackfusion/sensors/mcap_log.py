@@ -1,13 +1,15 @@
-"""The raw survey log: one MCAP file per run, JSON-encoded messages (docs/log_format.md).
+"""The raw survey log: one MCAP file per run (docs/log_format.md): ``/imu`` and ``/odometer``
+as ROS 2 CDR messages, the other topics as JSON; logs whose every topic is JSON (the older
+format) are read too. ROS 2 bags in MCAP are read with the same checks (:func:`read_cdr_topics`).
 
 - :func:`write_log` writes a :class:`SensorLog` atomically and byte-identically
   for identical input (zstd chunks, full MCAP index and summary).
 - :func:`read_log` reads one back and checks every record: known topic and
-  schema, message encoding ``json``, decodable JSON with the schema's fields,
-  finite numbers, ``log_time`` strictly increasing per topic. The first bad
-  record raises a :class:`SensorDataError` of one line naming the file, topic
-  and record index (0-based within its topic). A truncated or corrupt file
-  raises an error that says how many records were readable;
+  schema, message encoding (``cdr`` for the ROS 2 types, else ``json``), a CDR record of its
+  type's layout or decodable JSON with the schema's fields, finite numbers, ``log_time``
+  strictly increasing per topic. The first bad record raises a :class:`SensorDataError` of one
+  line naming the file, topic and record index (0-based within its topic). A truncated or
+  corrupt file raises an error that says how many records were readable;
   ``allow_truncated=True`` returns that readable prefix instead.
 - :func:`inspect_log` summarises a log per topic (:class:`LogSummary`).
 - :func:`copy_log` writes a log file that :func:`read_log` read whole and intact
@@ -17,13 +19,13 @@
 ``round(t_s * 1e9)``; reading gives ``t_s = log_time / 1e9`` (so times are
 quantised to 1 ns; values round-trip bit-exactly).
 
-Both directions are vectorised: messages are formatted with one printf
-template per schema and parsed, when they are in trackfusion's canonical text
-layout, by one number parse per batch of a topic; other valid JSON layouts take
-the general ``json`` path with identical checks. A large log is read in two
-processes, the second half of its chunks by a forked child
-(:mod:`.mcap_parallel`), or else decoded in two worker processes while this
-one scans; both give the serial read's result exactly.
+The MCAP structure is read here rather than with the ``mcap`` library's reader, which yields one
+Python object per message (several seconds for an hour of 500 Hz IMU messages): a chunk's
+records are located from its message indexes (checked to chain exactly) and each channel's
+CDR records of a chunk are copied out as one array and decoded together (:mod:`.cdr`). The
+small records (header, schemas, channels, summary) are written with the ``mcap`` library's
+record builder; CRCs are zlib's. JSON payloads are parsed with ``json`` in batches (in two
+worker processes on a machine with two CPUs).
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from typing import Any, Iterable
 
 import numpy as np
 import zstandard
+from numpy.lib.stride_tricks import sliding_window_view
 from mcap.data_stream import RecordBuilder
 from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex, Schema, Statistics,
                           SummaryOffset)
@@ -52,9 +55,8 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata
 from .. import __version__
 from ..workers import can_fork, fork_context
 from ..errors import SensorDataError
-from . import schemas
+from . import cdr, schemas
 from .fileio import atomic_path
-from .number_parse import parse_numbers
 from .spill import trim_heap
 from .types import GaugeData, GnssData, ImuData, InclinometerData, OdometerData, SensorLog, TotalStationData
 
@@ -93,6 +95,9 @@ class _Stream:
     log_time_ns: np.ndarray
     payloads: list[str]
     schema_data: bytes | None = None
+    #: MCAP message encoding of the channel and schema encoding ("cdr"/"ros2msg" for ROS 2 messages)
+    encoding: str = "json"
+    schema_encoding: str = "jsonschema"
 
 
 @dataclass
@@ -149,28 +154,91 @@ def _columns(topic: str, n: int, named: Iterable[tuple[str, Any, tuple[int, ...]
     return out
 
 
+#: the ROS 2 message types of trackfusion's own high-rate topics (CDR; docs/log_format.md)
+CDR_IMU = "sensor_msgs/msg/Imu"
+CDR_ODOMETER = "trackfusion_msgs/msg/OdometerDistance"
+#: topic -> the ROS 2 type it may carry instead of its JSON schema
+CDR_TOPICS = {"/imu": CDR_IMU, "/odometer": CDR_ODOMETER}
+#: REP-145: element 0 of a covariance set to -1 says "no estimate" (the IMU gives no orientation)
+_UNKNOWN_COVARIANCE = (-1.0,) + (0.0,) * 8
+
+
+def _checked(topic: str, n: int, name: str, values, trailing: tuple[int, ...]) -> np.ndarray:
+    """``values`` as an array of shape (n, *trailing), numeric and finite; else the writer's error."""
+    a = np.asarray(values)
+    if a.shape != (n, *trailing):
+        raise _fail(topic, f"{name} has shape {a.shape}, expected {(n, *trailing)}")
+    if a.dtype.kind not in "fiub":
+        raise _fail(topic, f"{name} must be numeric, got dtype {a.dtype}")
+    if a.dtype.kind == "f":
+        bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1)
+        if bad.any():
+            raise _fail(topic, f"{name} sample {int(np.argmax(bad))} is not finite")
+    return a
+
+
+_MSGDEFS: dict[str, bytes] = {}
+
+
+def _msgdef(msgtype: str) -> bytes:
+    """The ``ros2msg`` schema text of a ROS 2 type (made once per process)."""
+    if msgtype not in _MSGDEFS:
+        from .ros2 import msgdef
+        _MSGDEFS[msgtype] = msgdef(msgtype).encode()
+    return _MSGDEFS[msgtype]
+
+
+def _cdr_stream(topic: str, msgtype: str, frame_id: str, ns: np.ndarray, values: dict[str, Any],
+                offset_ns: int = 0) -> _Stream:
+    """A channel of CDR messages: every record of one layout, header.stamp = log_time (``ns``);
+    ``offset_ns`` moves the log_time only (``fused.mcap`` on the absolute clock, payloads as in the log)."""
+    values = {**values, "stamp.sec": ns // 10**9, "stamp.nanosec": ns % 10**9}
+    records = cdr.encode(msgtype, frame_id, values, ns.size)
+    size = records.dtype.itemsize
+    text = records.tobytes().decode("latin-1")
+    return _Stream(topic, msgtype, ns + offset_ns, [text[i:i + size] for i in range(0, len(text), size)],
+                   _msgdef(msgtype), encoding="cdr", schema_encoding="ros2msg")
+
+
 def _format(schema: str, columns: list[list]) -> list[str]:
     """Payloads: one printf of the schema's canonical template per message (vectorised via map)."""
     return list(map(schemas.CANONICAL[schema].template.__mod__, zip(*columns)))
 
 
-def _streams(log: SensorLog, offset_ns: int = 0) -> list[_Stream]:
-    """Every sensor present, in channel order, checked and formatted; ``offset_ns`` is added to every
+def _streams(log: SensorLog, encoding: str = "ros2", offset_ns: int = 0) -> list[_Stream]:
+    """Every sensor present, in channel order, checked and formatted (``encoding`` "json": the
+    IMU and odometer too as JSON, the format of logs before CDR); ``offset_ns`` is added to every
     log_time (``fused.mcap`` on the survey's absolute clock; the payloads stay as in the log, as
     :func:`copy_log` keeps them)."""
     out: list[_Stream] = []
-    if log.imu is not None:
+    if log.imu is not None and encoding == "json":
         d, topic = log.imu, "/imu"
         ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
         out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
-    if log.odometer is not None:
+    elif log.imu is not None:
+        d, topic = log.imu, "/imu"
+        ns = _log_time_ns(topic, d.t_s)
+        values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
+                  "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
+                  "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
+        out.append(_cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns))
+    if log.odometer is not None and encoding == "json":
         d, topic = log.odometer, "/odometer"
         ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
         if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
             raise _fail(topic, "ticks must be integers")
         out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
+    elif log.odometer is not None:
+        d, topic = log.odometer, "/odometer"
+        ns = _log_time_ns(topic, d.t_s)
+        ticks = np.asarray(d.ticks)
+        if ticks.dtype.kind == "f" and not np.array_equal(ticks, np.rint(ticks)):
+            raise _fail(topic, "ticks must be integers")
+        values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
+                  "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
+        out.append(_cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns))
     if log.gnss is not None:
         d, topic = log.gnss, "/gnss"
         own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
@@ -484,9 +552,10 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
             data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
             schema_ids[s.schema] = next_schema
             next_schema += 1
-            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding="jsonschema", data=data))
+            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding,
+                                      data=data))
         channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
-                                    message_encoding="json", metadata={}))
+                                    message_encoding=s.encoding, metadata={}))
     for rec in schema_recs + channel_recs:
         out.put(_record(rec))
     metadata_indexes, chunk_indexes = _copied_records(out, source, source_offset_ns) if source else ([], [])
@@ -525,7 +594,8 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
     out.put(MAGIC, in_crc=False)
 
 
-def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = (), time_offset_ns: int = 0) -> None:
+def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = (), encoding: str = "ros2",
+              time_offset_ns: int = 0) -> None:
     """Write ``log`` to ``path`` as an MCAP raw log (docs/log_format.md).
 
     Every sensor present (not None; total stations by id) becomes one channel; messages of
@@ -536,11 +606,15 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     identical input (no wall-clock time). Raises :class:`SensorDataError` for data the reader
     would refuse (non-finite values, times not strictly increasing, wrong shapes).
     ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
-    :func:`read_log` accepts; ``fused.mcap`` is written this way); ``time_offset_ns`` [ns] is
+    :func:`read_log` accepts; ``fused.mcap`` is written this way). ``encoding``: "ros2" writes
+    ``/imu`` as ``sensor_msgs/msg/Imu`` and ``/odometer`` as ``trackfusion_msgs/msg/OdometerDistance``
+    (CDR), "json" every topic as JSON (the older format, still read). ``time_offset_ns`` [ns] is
     added to the sensors' log_time (``fused.mcap`` on the survey's absolute clock; the extra
     channels carry their own times).
     """
-    streams = _streams(log, int(time_offset_ns)) + _extra_streams(extra)
+    if encoding not in ("ros2", "json"):
+        raise ValueError(f"encoding must be 'ros2' or 'json', got {encoding!r}")
+    streams = _streams(log, encoding, int(time_offset_ns)) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)
@@ -634,23 +708,11 @@ class _RawChannel:
     #: (index of the batch's first record, its decoding: a :func:`_decode_batch` result or a future of one)
     batches: list[tuple[int, Any]] = field(default_factory=list)
     decoded: int = 0
-    #: payloads of the current batch that the other process of a two-process read holds (its
-    #: child starts inside a batch, sensors/mcap_parallel.py): the batch is handed back, not decoded
-    held: int = 0
-    #: (payload count, decoding) of the pending payloads, decoded already by that child: used
-    #: when the batch is still exactly those payloads
-    tail: tuple[int, Any] | None = None
 
     def decode_pending(self, schema: str, decoder: "_Decoder | None" = None) -> None:
         """Hand the pending payloads to ``decoder`` as one batch (decoded here without one)."""
-        tail, self.tail = self.tail, None
-        if self.held:
-            result, self.held = _Held(self.payloads), 0
-        elif tail is not None and tail[0] == len(self.payloads):
-            result = tail[1]
-        else:
-            result = (decoder.decode(self.payloads, schema) if decoder is not None
-                      else _decode_batch(self.payloads, schema))
+        result = (decoder.decode(self.payloads, schema) if decoder is not None
+                  else _decode_batch(self.payloads, schema))
         self.batches.append((self.decoded, result))
         self.decoded += len(self.payloads)
         self.payloads = []
@@ -670,14 +732,6 @@ class _RawChannel:
             batches.append(result)
         del result
         return _join_batches(batches)
-
-
-@dataclass
-class _Held:
-    """A batch whose first payloads the other process of a two-process read holds: its payloads
-    here, handed back undecoded (sensors/mcap_parallel.py)."""
-
-    payloads: list[bytes]
 
 
 def _join_batches(batches: list[list[np.ndarray]]) -> list[np.ndarray]:
@@ -704,9 +758,41 @@ def _decode_batch(payloads: list[bytes], schema: str) -> list[np.ndarray] | tupl
     """The sensor value arrays (:func:`_sensor_arrays`) of a batch of payloads, or (index, reason)
     of its first invalid record (picklable: it may run in a worker process)."""
     try:
+        if schema in cdr.LAYOUTS:
+            return _cdr_arrays(cdr.Records.from_payloads(payloads), schema)
         return _sensor_arrays(schema, _decode_fields(payloads, schema))
     except _Bad as bad:
         return bad.index, bad.reason
+
+
+def _cdr_batch(records: cdr.Records, msgtype: str) -> list[np.ndarray] | tuple[int, str]:
+    """:func:`_decode_batch` of CDR records."""
+    try:
+        return _cdr_arrays(records, msgtype)
+    except _Bad as bad:
+        return bad.index, bad.reason
+
+
+def _cdr_arrays(records: cdr.Records, msgtype: str) -> list[np.ndarray]:
+    """The :data:`cdr.WANTED` fields of a batch of CDR records, checked finite; raises _Bad."""
+    try:
+        fields = cdr.decode(records, msgtype)
+    except cdr.CdrRecordError as exc:
+        raise _Bad(exc.index, exc.reason) from None
+    first = None
+    for name, values in fields.items():
+        if values.dtype.kind == "f":
+            flat = values.reshape(len(values), int(np.prod(values.shape[1:], dtype=int)))
+            bad = ~np.isfinite(flat).all(axis=1)
+            if bad.any() and (first is None or int(np.argmax(bad)) < first.index):
+                i = int(np.argmax(bad))
+                j = int(np.argmax(~np.isfinite(flat[i])))
+                what = "NaN" if np.isnan(flat[i, j]) else "infinite"
+                axis = f".{'xyzw'[j]}" if flat.shape[1] in (3, 4) else (f"[{j}]" if flat.shape[1] > 1 else "")
+                first = _Bad(i, f"{name}{axis} is {what}")
+    if first is not None:
+        raise first
+    return [fields[k] for k in cdr.WANTED[msgtype]]
 
 
 #: worker processes decoding payload batches while a scan goes on (below 2: none, decode in turn)
@@ -729,7 +815,10 @@ class _Decoder:
         self.parallel = can_fork(DECODE_WORKERS)
 
     def decode(self, payloads: list[bytes], schema: str) -> Any:
-        """A future of :func:`_decode_batch` (or its result when decoding here)."""
+        """A future of :func:`_decode_batch` (or its result when decoding here; CDR batches are
+        always decoded here: they take less time than sending them to a worker)."""
+        if schema in cdr.LAYOUTS:
+            return _decode_batch(payloads, schema)
         if self.parallel and self.pool is None:
             try:
                 self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS, mp_context=fork_context())
@@ -774,8 +863,8 @@ class _Scan:
     copyable: bool = True
     stat: os.stat_result | None = None
     decoder: _Decoder = field(default_factory=_Decoder)
-    #: the second half of the chunks read by a forked child (sensors/mcap_parallel.py), or None
-    split: Any = None
+    #: reading a ROS 2 bag: topic -> message type of the topics read (others are not checked)
+    cdr_types: dict[str, str] | None = None
 
     def source(self) -> "RawSource | None":
         """What copying the whole file needs, or None unless it was read whole, intact and copyable."""
@@ -821,7 +910,7 @@ class _Scan:
             return
         off = np.asarray(offsets, dtype=np.int64)
         raw = np.frombuffer(data, dtype=np.uint8)
-        hdr = np.ascontiguousarray(raw[off[:, None] + np.arange(31)]).view(_MSG_HEADER).ravel()
+        hdr = sliding_window_view(raw, 31)[off].view(_MSG_HEADER).ravel()
         if np.any(hdr["length"] < 22):
             raise _Corrupt("message record shorter than 22 bytes", base + int(off[np.argmax(hdr["length"] < 22)]))
         channel = hdr["channel"]
@@ -838,14 +927,36 @@ class _Scan:
             if self.wanted is not None and ch.topic not in self.wanted:
                 continue
             ch.times.append(hdr["log_time"][sel])
+            if ch.encoding == "cdr" and not ch.payloads and self.cdr_rows(ch, raw, starts[sel], stops[sel]):
+                continue
             ch.payloads.extend(map(data.__getitem__, map(slice, starts[sel].tolist(), stops[sel].tolist())))
-            if len(ch.payloads) + ch.held >= _DECODE_BATCH:
+            if len(ch.payloads) >= _DECODE_BATCH:
                 try:
                     schema = _channel_schema(self, ch)
                 except _Bad:
                     continue  # a channel problem: reported by read_log after the scan
                 ch.decode_pending(schema, self.decoder)
         self.n_messages += len(offsets)
+
+    def cdr_rows(self, ch: _RawChannel, raw: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> bool:
+        """Decode one chunk's CDR messages of a channel at once when they all have one size: the
+        records are copied out of the chunk as one (n, size) array (no bytes object per message).
+        False (nothing done) otherwise: then the payloads are cut out one by one."""
+        size = stops - starts
+        if size.size == 0 or size[0] <= 0 or not (size == size[0]).all():
+            return False
+        try:
+            msgtype = _channel_schema(self, ch)
+        except _Bad:
+            return False  # reported by the read after the scan
+        if msgtype not in cdr.LAYOUTS:
+            return False
+        length = int(size[0])
+        rows = sliding_window_view(raw, length)[starts]
+        records = cdr.Records(rows.reshape(-1), np.arange(size.size, dtype=np.int64) * length, size)
+        ch.batches.append((ch.decoded, _cdr_batch(records, msgtype)))
+        ch.decoded += size.size
+        return True
 
     def readable(self) -> str:
         per_topic = ", ".join(f"{c.topic} {c.count}" for c in self.channels.values() if c.count)
@@ -854,18 +965,19 @@ class _Scan:
 
 def _message_offsets(data: bytes) -> np.ndarray | None:
     """Offsets (int64) of a chunk's records when every record is a Message whose payload is a JSON
-    object (what trackfusion writes), found without walking the records one by one; None
-    otherwise (then :func:`_walk_chunk` walks them).
+    object or little-endian CDR (what trackfusion writes), found without walking the records one
+    by one; None otherwise (then :func:`_walk_chunk` walks them).
 
     Candidates are the bytes 5 (Message opcode) followed by a 32-bit record length and, 31 bytes
-    on, ``{``; the record lengths must then chain them from offset 0 to the end of the chunk, so
+    on, ``{`` or the CDR header ``00 01``; the record lengths must then chain them from offset 0 to the end of the chunk, so
     the offsets are exactly those a walk finds (a candidate that lies inside a record is skipped:
     no record ends at it)."""
     raw = np.frombuffer(data, np.uint8)
     if raw.size < 32 or raw[0] != _MESSAGE:
         return None
     candidates = np.flatnonzero(raw[:raw.size - 40] == np.uint8(_MESSAGE))  # (a whole header and a byte)
-    candidates = candidates[raw[candidates + 31] == ord("{")]
+    first = raw[candidates + 31]
+    candidates = candidates[(first == ord("{")) | ((first == 0) & (raw[candidates + 32] == 1))]
     lengths = raw[candidates[:, None] + np.arange(1, 9)].copy().view("<u8").ravel()
     stops = candidates + 9 + np.minimum(lengths, raw.size).astype(np.int64)
     following = np.searchsorted(candidates, stops)  # the candidate at each record's end, if any
@@ -879,10 +991,33 @@ def _message_offsets(data: bytes) -> np.ndarray | None:
     return candidates[chain]
 
 
-def _walk_chunk(scan: _Scan, data: bytes, base: int, complete: bool) -> None:
-    """Parse the records of one decompressed chunk; a cut last record ends a partial chunk."""
+def _indexed_offsets(data: bytes, hint: np.ndarray | None) -> np.ndarray | None:
+    """The offsets of a chunk's records from its message index records (``hint``: every offset
+    they list), when those offsets chain exactly: the first at 0, each record a Message ending
+    where the next starts, the last ending at the chunk's end; then they are the offsets a walk
+    finds. None otherwise."""
+    if hint is None or hint.size == 0:
+        return None
+    off = np.sort(hint).astype(np.int64)
+    raw = np.frombuffer(data, np.uint8)
+    if off[0] != 0 or off[-1] + 9 > raw.size or (np.diff(off) <= 0).any():
+        return None
+    head = sliding_window_view(raw, 9)[off]
+    lengths = head[:, 1:].copy().view("<u8").ravel()
+    if not (head[:, 0] == _MESSAGE).all() or (lengths > raw.size).any():
+        return None
+    stops = off + 9 + lengths.astype(np.int64)
+    if not (np.array_equal(stops[:-1], off[1:]) and stops[-1] == raw.size):
+        return None
+    return off
+
+
+def _walk_chunk(scan: _Scan, data: bytes, base: int, complete: bool, hint: np.ndarray | None = None) -> None:
+    """Parse the records of one decompressed chunk; a cut last record ends a partial chunk.
+    ``hint``: the record offsets its message indexes list (used when they chain exactly)."""
     if complete:
-        fast = _message_offsets(data)
+        fast = _indexed_offsets(data, hint)
+        fast = _message_offsets(data) if fast is None else fast
         if fast is not None:
             scan.add_messages(data, fast, base)
             return
@@ -933,9 +1068,26 @@ def _inflate(compression: str, data: bytes, size: int, at: int, complete: bool =
     raise _Corrupt(f"unsupported chunk compression {compression!r}", at)
 
 
-def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool) -> None:
+def _read_chunk(scan: _Scan, body: bytes, at: int, complete: bool, hint: np.ndarray | None = None) -> None:
     """A Chunk record (``body`` may be cut short when ``complete`` is False)."""
-    _walk_chunk(scan, _chunk_data(body, at, complete), at, complete)
+    _walk_chunk(scan, _chunk_data(body, at, complete), at, complete, hint)
+
+
+def _index_hint(mm, pos: int, size: int) -> np.ndarray | None:
+    """The record offsets listed by the MessageIndex records that follow a chunk ending at
+    ``pos`` (None when there are none or they are malformed; the walk checks them anyway)."""
+    parts = []
+    while pos + 9 <= size:
+        op, length = _RECORD_HEAD.unpack(mm[pos:pos + 9])
+        if op != _MESSAGE_INDEX or pos + 9 + length > size or length < 6:
+            break
+        body = mm[pos + 9:pos + 9 + length]
+        n = struct.unpack_from("<I", body, 2)[0]
+        if n % 16 or 6 + n > len(body):
+            return None
+        parts.append(np.frombuffer(body, _INDEX_ENTRY, n // 16, 6)["offset"])
+        pos += 9 + length
+    return np.concatenate(parts) if parts else None
 
 
 def _chunk_data(body: bytes, at: int, complete: bool) -> bytes:
@@ -956,11 +1108,10 @@ def _chunk_data(body: bytes, at: int, complete: bool) -> bytes:
     return records
 
 
-def _read_record(scan: _Scan, op: int, body: bytes, at: int) -> None:
-    """One complete top-level record of the data section."""
+def _read_record(scan: _Scan, op: int, body: bytes, at: int, hint: np.ndarray | None = None) -> None:
+    """One complete top-level record of the data section (``hint``: a chunk's :func:`_index_hint`)."""
     if op == _CHUNK:
-        if scan.split is None or not scan.split.take(scan, at):
-            _read_chunk(scan, body, at, complete=True)
+        _read_chunk(scan, body, at, complete=True, hint=hint)
     elif op == _MESSAGE:
         _walk_chunk(scan, _RECORD_HEAD.pack(op, len(body)) + body, at, complete=True)
     elif op == _SCHEMA:
@@ -1008,7 +1159,7 @@ def _scan_records(scan: _Scan, mm, size: int) -> None:
                 raise _Corrupt("data section CRC mismatch", pos)
             in_data = False
         elif in_data:
-            _read_record(scan, op, body, pos)
+            _read_record(scan, op, body, pos, _index_hint(mm, stop, size) if op == _CHUNK else None)
             scan.note_record(op, pos, stop)
         if in_data:
             crc = zlib.crc32(body, zlib.crc32(mm[pos:pos + 9], crc))
@@ -1043,10 +1194,12 @@ def _check_footer(mm, size: int, pos: int, stop: int, body: bytes) -> None:
             raise _Corrupt("summary CRC mismatch", pos)
 
 
-def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None) -> _Scan:
+def _scan_file(path: Path, allow_truncated: bool, wanted: set[str] | None,
+               cdr_types: dict[str, str] | None = None) -> _Scan:
     """Read the file's structure; strict unless ``allow_truncated`` (then keep the readable prefix).
-    The caller closes ``scan.decoder`` (here on error)."""
-    scan = _Scan(str(path), wanted)
+    The caller closes ``scan.decoder`` (here on error). ``cdr_types``: a ROS 2 bag's topics to
+    read (topic -> message type; then ``wanted`` is their set)."""
+    scan = _Scan(str(path), wanted, cdr_types=cdr_types)
     try:
         _scan_into(scan, path, allow_truncated)
     except BaseException:
@@ -1062,13 +1215,7 @@ def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
             size = fh.seek(0, io.SEEK_END)
             if size == 0:
                 raise _Corrupt("empty file", 0)
-            from .mcap_parallel import start_split
-            scan.split = start_split(scan, _FileBytes(fh.fileno(), size), size)
-            try:
-                _scan_records(scan, _FileBytes(fh.fileno(), size), size)
-            finally:
-                if scan.split is not None:
-                    scan.split.close()
+            _scan_records(scan, _FileBytes(fh.fileno(), size), size)
     except FileNotFoundError:
         raise SensorDataError(f"{path}: file not found") from None
     except IsADirectoryError:
@@ -1099,37 +1246,6 @@ class _Bad(Exception):
     def __init__(self, index: int, reason: str):
         super().__init__(reason)
         self.index, self.reason = index, reason
-
-
-_NUMBER_CHARS = b"0123456789.eE+-"
-_TO_SPACE = bytes(c if c in _NUMBER_CHARS else 32 for c in range(256))
-
-
-def _canonical_values(payloads: list[bytes], canonical: schemas.Canonical) -> np.ndarray | None:
-    """Values (N, k) of payloads in the exact canonical layout, or None if any payload differs from it.
-
-    Checks, all vectorised: deleting every number character from the joined text leaves the template's
-    skeleton N times; each literal piece holding number characters occurs the expected number of
-    times; every number follows the JSON grammar (:func:`_json_numbers`); the numbers then parse to
-    exactly N*k values.
-    """
-    n, k = len(payloads), len(canonical.kinds)
-    pieces = [p.encode() for p in canonical.pieces]
-    skeleton = b"".join(pieces).translate(None, _NUMBER_CHARS)
-    text = b"\n".join(payloads)
-    if text.translate(None, _NUMBER_CHARS) != b"\n".join(itertools.repeat(skeleton, n)):
-        return None
-    for piece in sorted(set(pieces), key=len, reverse=True):
-        if any(ch in _NUMBER_CHARS for ch in piece):
-            if text.count(piece) != n * pieces.count(piece):
-                return None
-            text = text.replace(piece, b" ")
-    numbers = text.translate(_TO_SPACE)
-    del text
-    values = parse_numbers(numbers)
-    if values is None or values.size != n * k:
-        return None
-    return values.reshape(n, k)
 
 
 def _value_problem(v, path: str, kind: str) -> str | None:
@@ -1225,43 +1341,12 @@ def _json_messages(payloads: list[bytes]) -> list[dict]:
     return msgs
 
 
-def _fast_fields(payloads: list[bytes], schema: str) -> dict[str, np.ndarray] | None:
-    """Every required field via the canonical fast path, or None (then the JSON path decides)."""
-    canonical = schemas.CANONICAL[schema]
-    if not canonical.numeric:
-        return None
-    values = _canonical_values(payloads, canonical)
-    if values is None:
-        return None
-    col = {name: values[:, j] for j, name in enumerate(canonical.names)}
-    out: dict[str, np.ndarray] = {}
-    for path, kind in schemas.FIELDS[schema]:
-        if kind == "float9":
-            out[path] = np.column_stack([col[f"{path}.{j}"] for j in range(9)])
-        elif kind == "int":
-            v = col[path]
-            if not np.all((np.abs(v) < 2**53) & (v == np.rint(v))):
-                return None
-            out[path] = v.astype(np.int64)
-        else:
-            out[path] = col[path]
-    bad = ~np.isfinite(values)
-    if bad.any():
-        row = int(np.argmax(bad.any(axis=1)))
-        name = canonical.names[int(np.argmax(bad[row]))]
-        raise _Bad(row, f"{name} is {'NaN' if np.isnan(values[row]).any() else 'infinite'}")
-    return out
-
-
 def _decode_fields(payloads: list[bytes], schema: str) -> dict[str, np.ndarray]:
     """Required fields of every message; raises _Bad for the first invalid record."""
     if not payloads:
         empty = {"float": np.zeros(0), "int": np.zeros(0, np.int64), "str": np.zeros(0, object),
                  "float9": np.zeros((0, 9))}
         return {path: empty[kind] for path, kind in schemas.FIELDS[schema]}
-    fast = _fast_fields(payloads, schema)
-    if fast is not None:
-        return fast
     msgs = _json_messages(payloads)
     out, first = {}, None
     for path, kind in schemas.FIELDS[schema]:
@@ -1290,15 +1375,29 @@ def _check_times(ns: np.ndarray) -> np.ndarray:
 
 
 def _channel_schema(scan: _Scan, ch: _RawChannel) -> str:
-    """The channel's schema name after checking topic, schema and encoding; raises _Bad(0, ...)."""
+    """The channel's schema name after checking topic, schema and encoding; raises _Bad(0, ...).
+    A trackfusion topic of :data:`CDR_TOPICS` may carry its ROS 2 type (CDR) instead; in a ROS 2
+    bag (``scan.cdr_types``) a topic read must carry the type it was chosen for."""
+    name = scan.schemas.get(ch.schema_id, ("", ""))[0]
+    if scan.cdr_types is not None:
+        msgtype = scan.cdr_types[ch.topic]
+        if name != msgtype:
+            raise _Bad(0, f"schema {name!r} is not {msgtype!r}")
+        if ch.encoding != "cdr":
+            raise _Bad(0, f"message encoding {ch.encoding!r} is not 'cdr'")
+        return msgtype
     expected = schemas.schema_for_topic(ch.topic)
     if expected is None:
         raise _Bad(0, "unknown topic")
-    name = scan.schemas.get(ch.schema_id, ("", ""))[0]
+    if CDR_TOPICS.get(ch.topic) == name:
+        if ch.encoding != "cdr":
+            raise _Bad(0, f"message encoding {ch.encoding!r} is not 'cdr'")
+        return name
     if not name:
         raise _Bad(0, f"channel has no schema (expected {expected!r})")
     if name != expected:
-        raise _Bad(0, f"unknown schema {name!r} (expected {expected!r})")
+        also = f" or {CDR_TOPICS[ch.topic]!r}" if ch.topic in CDR_TOPICS else ""
+        raise _Bad(0, f"unknown schema {name!r} (expected {expected!r}{also})")
     if ch.encoding != "json":
         raise _Bad(0, f"message encoding {ch.encoding!r} is not 'json'")
     return name
@@ -1321,7 +1420,12 @@ _SENSOR_TYPES = {schemas.IMU: ImuData, schemas.ODOMETER: OdometerData, schemas.L
 
 
 def _sensor(topic: str, schema: str, t_s: np.ndarray, arrays: list[np.ndarray]):
-    """The sensor dataclass of one decoded topic (``arrays``: :func:`_sensor_arrays`)."""
+    """The sensor dataclass of one decoded topic (``arrays``: :func:`_sensor_arrays`, or for a
+    CDR topic the stamp and the :data:`cdr.WANTED` fields)."""
+    if schema == CDR_IMU:
+        return ImuData(t_s, arrays[2], arrays[3])
+    if schema == CDR_ODOMETER:
+        return OdometerData(t_s, arrays[2], arrays[3])
     if schema == schemas.POLAR:
         return TotalStationData(topic[len(schemas.TOTAL_STATION_PREFIX):], t_s, *arrays)
     return _SENSOR_TYPES[schema](t_s, *arrays)
@@ -1396,6 +1500,60 @@ def _decode_channel(scan: _Scan, ch: _RawChannel, schema: str):
     if problems:
         raise min(problems, key=lambda b: b.index)
     return _sensor(ch.topic, schema, t_s, arrays)
+
+
+def channel_types(path: str | Path) -> dict[str, tuple[str, int]]:
+    """topic -> (schema name, message count) of an MCAP file, from its summary (read with the
+    ``mcap`` library); a file without a summary is scanned (every chunk checked, nothing decoded)."""
+    p = Path(path)
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+    summary = None
+    try:
+        with open(p, "rb") as fh:
+            summary = make_reader(fh).get_summary()
+    except (McapError, ValueError, struct.error, EOFError):
+        summary = None
+    except OSError as exc:
+        raise SensorDataError(f"{p}: cannot read ({exc.strerror or exc})") from None
+    if summary is not None and summary.statistics is not None:
+        counts = summary.statistics.channel_message_counts
+        return {c.topic: (summary.schemas[c.schema_id].name if c.schema_id in summary.schemas else "",
+                          int(counts.get(cid, 0))) for cid, c in summary.channels.items()}
+    scan = _scan_file(p, True, set())
+    scan.decoder.close()
+    return {c.topic: (scan.schemas.get(c.schema_id, ("", ""))[0], c.count) for c in scan.channels.values()}
+
+
+def read_cdr_topics(path: str | Path, topics: dict[str, str], allow_truncated: bool = False
+                    ) -> tuple[dict[str, tuple[np.ndarray, dict[str, np.ndarray]]], dict[str, Any] | None]:
+    """The CDR topics of a ROS 2 MCAP bag: topic -> (log times (N,) uint64 [ns], the decoded
+    :data:`cdr.WANTED` fields of its message type), and the damage report (as
+    :func:`read_log_with_damage`). ``topics``: topic -> message type. The whole file is checked
+    (records, CRCs); other topics are not decoded. Raises SensorDataError naming the topic and
+    record (0-based in the topic) for the first bad record."""
+    p = Path(path)
+    scan = _scan_file(p, allow_truncated, set(topics), cdr_types=dict(topics))
+    out = {}
+    try:
+        for ch in scan.channels.values():
+            if ch.topic not in topics:
+                continue
+            try:
+                msgtype = _channel_schema(scan, ch)
+                ns = np.concatenate(ch.times) if ch.times else np.zeros(0, np.uint64)
+                out[ch.topic] = (ns, dict(zip(cdr.WANTED[msgtype], ch.arrays(msgtype))))
+            except _Bad as bad:
+                raise SensorDataError(f"{p}: {ch.topic} record {bad.index}: {bad.reason}") from None
+            ch.payloads, ch.times, ch.batches = [], [], []
+    finally:
+        scan.decoder.close()
+    for topic in topics:
+        out.setdefault(topic, (np.zeros(0, np.uint64), {}))
+    damage = None if scan.problem is None else {
+        "file": str(path), "byte": int(scan.problem.at), "reason": scan.problem.reason,
+        "records_readable": {c.topic: int(c.count) for c in scan.channels.values() if c.count}}
+    return out, damage
 
 
 #: the topics fused.mcap adds to the raw log's (sensors/fused.py): summarised by inspect, not read
@@ -1482,10 +1640,10 @@ class LogSummary:
         total = sum(t.count for t in self.topics)
         lines = [f"{self.path}: {self.size_bytes / 1e6:.2f} MB, {total} messages on {len(self.topics)} topics"
                  f" (written by {self.library or 'unknown'})",
-                 f"{'topic':24s} {'schema':30s} {'clock':7s} {'count':>9s} {'rate Hz':>9s} {'first s':>11s} "
+                 f"{'topic':24s} {'schema':38s} {'clock':7s} {'count':>9s} {'rate Hz':>9s} {'first s':>11s} "
                  f"{'last s':>11s} {'span s':>10s} {'gaps':>5s} {'max gap s':>10s} {'at s':>11s}"]
         for t in self.topics:
-            lines.append(f"{t.topic:24s} {t.schema:30s} {t.clock:7s} {t.count:9d} {t.rate_hz:9.3f} "
+            lines.append(f"{t.topic:24s} {t.schema:38s} {t.clock:7s} {t.count:9d} {t.rate_hz:9.3f} "
                          f"{t.first_s:11.3f} {t.last_s:11.3f} {t.span_s:10.3f} {t.gap_count:5d} "
                          f"{t.largest_gap_s:10.3f} {t.largest_gap_at_s:11.3f}")
         lines.append("metadata records: " + (", ".join(self.metadata) or "none"))
@@ -1511,15 +1669,20 @@ def summarise_times(topic: str, schema: str, t_s: np.ndarray) -> TopicSummary:
 def inspect_log(path: str | Path) -> LogSummary:
     """Check a log fully (as :func:`read_log`, strict) and summarise it per topic. fused.mcap's own
     topics (FUSED_TOPIC_PREFIXES: trajectory, fixes and rails, ``foxglove.*`` schemas) are
-    summarised from their log times, after the sensor topics, without decoding their payloads."""
+    summarised from their log times, after the sensor topics, without decoding their payloads.
+    A ROS 2 bag is summarised by :func:`.ros2.inspect_bag`."""
     p = Path(path)
+    from .ros2 import inspect_bag, is_bag
+    if is_bag(p):
+        return inspect_bag(p)
     others: list[tuple[str, str, np.ndarray]] = []
     log, scan = _read(p, None, allow_truncated=False, others=others)
     entries: list[tuple[str, str, np.ndarray]] = []
+    written = {c.topic: scan.schemas.get(c.schema_id, ("", ""))[0] for c in scan.channels.values()}
     for topic, schema in schemas.TOPICS.items():
         data = getattr(log, topic[1:])
         if data is not None:
-            entries.append((topic, schema, data.t_s))
+            entries.append((topic, written.get(topic, schema), data.t_s))
     for sid, d in sorted(log.total_stations.items()):
         entries.append((schemas.TOTAL_STATION_PREFIX + sid, schemas.TOTAL_STATION_SCHEMA, d.t_s))
     entries.extend(sorted(others))
