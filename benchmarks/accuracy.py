@@ -5,7 +5,7 @@ Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
    seed 002's table 3: GNSS only, GNSS + NHC, GNSS + NHC + odometer (all with ZUPT), then the full
    pipeline as simulated (adding the wheel-path factor, docs/wheel_path.md), the full pipeline
    with the correlated GNSS errors switched off (white fixes), and the full pipeline in 600 s chunks (the 44 min run has 4 joins: a seam would show against the batch), and in
-   one batch (``smoother.workers: 1``; the others run in two parallel segments on 2 CPUs), with and
+   one batch said explicitly (``smoother.workers: 1``; the default is one batch as well), with and
    without the wheel path (chunked runs leave it out: pipeline.py). Relative
    accuracy at L = 5 m (MSE sigma1 and ADEV, vertical and lateral), absolute RMS, and the
    consistency RMS(error / sigma) per n axis; mean and worst over the seeds, and the consistency
@@ -40,7 +40,7 @@ VARIANTS = {
     "default (+ wheel path)": {},  # as simulated: the pipeline.yaml of the scenario
     "full, white GNSS": {"gnss": {"correlated_sigma_h_mm": 0.0, "correlated_sigma_v_mm": 0.0}},
     "full, 600 s chunks": {"smoother": {"chunk_s": 600.0, "overlap_s": 120.0}},  # no wheel path in chunks
-    # the variants above run in 2 parallel segments on a machine with 2 CPUs (fusion/segments.py)
+    # the default is one batch on any machine: these two say it explicitly
     "full, one batch": {"smoother": {"workers": 1}},
     "gnss+nhc+odometer, one batch": {"smoother": {"workers": 1}, "wheel_path": False},
 }

@@ -1,16 +1,15 @@
 """Benchmark: relative accuracy at 5 m across chunk joins against inside the chunks.
 
-Usage: python benchmarks/chunk_seams.py [--seeds 1 2 3] [--segments]   (after benchmarks/accuracy.py, which
+Usage: python benchmarks/chunk_seams.py [--seeds 1 2 3] [--parts]   (after benchmarks/accuracy.py, which
 leaves the one-batch run ``out-full_onebatch`` and the run in 600 s chunks ``out-full_600schunks``
 of each ``open-track-gnss`` seed under ``$TMPDIR/trackfusion-bench``.)
 For every moving sample, the error (estimate minus truth) 5 m of travel further minus the error
 there, lateral and vertical; RMS over the pairs straddling a join, over those starting within
 30 s of a join, and over the rest, for the chunked and the batch run. A seam shows as a larger
 RMS across the joins in the chunked run than in the batch run over the same pairs.
-With ``--segments``, the same across the joins of the two parallel segments (fusion/segments.py):
-the default run ``out-gnss-nhc-odometer`` (two segments on a 2-CPU machine) against accuracy.py's
-``full, one batch`` (``out-full_onebatch``). Writes benchmarks/results/chunk_seams.json
-(segment_seams.json).
+With ``--parts``, the same across the cuts of the exact time parts (fusion/partitioned.py):
+benchmarks/parts.py's run in 600 s parts in one worker against its one batch (nothing may show:
+the parts give the batch's answer). Writes benchmarks/results/chunk_seams.json (part_seams.json).
 """
 
 from __future__ import annotations
@@ -25,8 +24,8 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results" / "chunk_seams.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 RUNS = {"chunked": "out-full_600schunks", "batch": "out-full_onebatch"}
-#: ``--segments``: the run in two parallel segments (fusion/segments.py) against the one batch
-SEGMENT_RUNS = {"segmented": "out-gnss-nhc-odometer", "batch": "out-full_onebatch"}
+#: ``--parts``: benchmarks/parts.py's run in 600 s time parts against its one batch
+PART_RUNS = {"parts": "out-parts-partsof600s_1workers", "batch": "out-parts-onebatch"}
 CHUNK_S, OVERLAP_S, L_M = 600.0, 120.0, 5.0
 
 
@@ -64,9 +63,9 @@ def seed_figures(seed: int, runs: dict[str, str] = RUNS) -> dict:
     first = next(iter(runs))
     t = errs[first][0]
     i, j = pairs(t, np.interp(t, truth["t_s"], truth["chainage_m"]))
-    if first == "segmented":
-        metrics = json.loads((sim / runs[first] / "metrics.json").read_text())
-        joins = np.array([j_["t_s"] for j_ in metrics["segments"]["joins"]])
+    if first == "parts":
+        from trackfusion.fusion.partitioned import cut_times
+        joins = cut_times(t[0], t[-1], CHUNK_S)
     else:
         joins = join_times(t[0], t[-1], CHUNK_S, OVERLAP_S)
     straddle = np.zeros(i.size, bool)
@@ -88,22 +87,22 @@ def seed_figures(seed: int, runs: dict[str, str] = RUNS) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
-    ap.add_argument("--segments", action="store_true",
-                    help="the joins of the parallel segments (runs of accuracy.py's default and 'full, one batch')")
+    ap.add_argument("--parts", action="store_true",
+                    help="the cuts of the exact time parts (runs of benchmarks/parts.py, 600 s parts)")
     args = ap.parse_args()
-    runs = SEGMENT_RUNS if args.segments else RUNS
+    runs = PART_RUNS if args.parts else RUNS
     first = next(iter(runs))
     rows = [seed_figures(s, runs) for s in args.seeds]
     print("RMS of 5 m error differences [mm], lateral / vertical; "
-          + ("2 parallel segments, overlap 120 s" if args.segments else f"chunks of {CHUNK_S:g} s, overlap {OVERLAP_S:g} s"))
+          + (f"exact parts of {CHUNK_S:g} s" if args.parts else f"chunks of {CHUNK_S:g} s, overlap {OVERLAP_S:g} s"))
     for r in rows:
         cells = "  ".join(f"{label}: {first} {r[f'{first}_{label}_lateral_mm']:.3f}/{r[f'{first}_{label}_vertical_mm']:.3f}"
                           f" batch {r[f'batch_{label}_lateral_mm']:.3f}/{r[f'batch_{label}_vertical_mm']:.3f}"
                           for label in ("straddling", "within_30s", "elsewhere"))
         print(f"seed {r['seed']} ({len(r['joins_s'])} joins): {cells}")
-    out = RESULTS.with_name("segment_seams.json") if args.segments else RESULTS
+    out = RESULTS.with_name("part_seams.json") if args.parts else RESULTS
     out.parent.mkdir(exist_ok=True)
-    head = {"workers": 2, "overlap_s": 120.0} if args.segments else {"chunk_s": CHUNK_S, "overlap_s": OVERLAP_S}
+    head = {"part_s": CHUNK_S} if args.parts else {"chunk_s": CHUNK_S, "overlap_s": OVERLAP_S}
     out.write_text(json.dumps({**head, "L_m": L_M, "seeds": rows}, indent=2) + "\n")
     print(f"wrote {out}")
 

@@ -1,7 +1,7 @@
 """Benchmark: CPU seconds of the smoother's stages on the speed benchmark's hour of 500 Hz data.
 
 Usage: python benchmarks/solver_cpu.py [--passes N] [--scenario open-track|bridge] [--out FILE]
-       [--densify | --segments N] [--wheel-path on|off]
+       [--densify] [--part-s S] [--wheel-path on|off]
 The wall times of benchmarks/speed.py and bridge.py swing with the load of a shared machine;
 the process CPU time of the estimation core (preintegrate, build, solve, marginals) does much
 less, so before/after comparisons of the solver are made with this script (run it from each
@@ -54,11 +54,8 @@ def main() -> None:
                     help="bridge: factors.total_stations.solve (registration/two_stage.py)")
     ap.add_argument("--seed", type=int, default=1, help="bridge: the seed of benchmarks/bridge.py")
     ap.add_argument("--densify", action="store_true", help="one batch: time the densification too")
-    ap.add_argument("--segments", type=int, default=1,
-                    help="smooth in that many parallel segments (fusion/segments.py), here one after the other; "
-                         "the stages then include the densification of the rows at 100 Hz, as the workers do it")
-    ap.add_argument("--no-slow-priors", action="store_true",
-                    help="segments: without the priors on their slow states (smoother.slow_priors: false)")
+    ap.add_argument("--part-s", type=float, default=None,
+                    help="solve each step in exact time parts of this duration (smoother.part_s), in this process")
     ap.add_argument("--wheel-path", choices=["on", "off"], default=None,
                     help="switch factors.wheel_path on or off (default: as the pipeline.yaml; docs/wheel_path.md)")
     args = ap.parse_args()
@@ -66,25 +63,19 @@ def main() -> None:
     if args.wheel_path is not None:
         wheel = prob.factors.wheel_path.model_copy(update={"enabled": args.wheel_path == "on"})
         prob = replace(prob, factors=prob.factors.model_copy(update={"wheel_path": wheel}))
-    from trackfusion.fusion import segments, smoother
+    from trackfusion.fusion import smoother
+    if args.part_s is not None:
+        prob = replace(prob, smoother=prob.smoother.model_copy(update={"part_s": args.part_s}))
     from trackfusion.registration.two_stage import smooth_two_stage, uses_two_stage
     wall, cpu = time.perf_counter(), time.process_time()
     real_clock = time.perf_counter
     time.perf_counter = time.process_time  # the smoother's own stage timings, in CPU seconds
-    per_segment = None
     try:
-        if args.segments > 1:
-            segments.can_fork = lambda n: False  # in turn, in this process: each segment's CPU seconds
-            prob = replace(prob, smoother=prob.smoother.model_copy(
-                update={"workers": args.segments, "slow_priors": not args.no_slow_priors}))
-            res, _, info = segments.smooth_in_segments(prob, every=5)
-            per_segment = [s["timings_s"] for s in info["segments"]]
-        else:
-            res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
-            if args.densify:
-                tic = time.process_time()
-                densify_rows(prob, res)
-                res.timings_s["densify_s"] = time.process_time() - tic
+        res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
+        if args.densify:
+            tic = time.process_time()
+            densify_rows(prob, res)
+            res.timings_s["densify_s"] = time.process_time() - tic
     finally:
         time.perf_counter = real_clock
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -97,11 +88,8 @@ def main() -> None:
         "imu_samples": int(prob.imu.t_s.size), "keyframes": int(res.t_s.size),
         "factors": sum(res.factor_counts.values()), "iterations": res.iterations,
         "final_cost": res.final_cost, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_stages_s": stages,
-        "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
+        "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]), "part_s": args.part_s,
     }
-    if per_segment is not None:  # stages above: the slowest segment's; CPU of each and its critical path
-        result["segments"] = [{k: round(v, 2) for k, v in t.items()} for t in per_segment]
-        result["critical_path_cpu_s"] = round(max(t["cpu_s"] for t in per_segment), 2)
     out = args.out or (RESULTS if args.scenario == "open-track" else RESULTS.with_name("solver_cpu_bridge.json"))
     out.parent.mkdir(exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
@@ -109,9 +97,6 @@ def main() -> None:
           f"{result['factors']} factors, {res.iterations} iterations")
     print(f"estimation core: {cpu:.1f} CPU s ({wall:.1f} s wall, load {result['load_average_1min']:.1f}): "
           + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in stages.items()))
-    if per_segment is not None:
-        print(f"{len(per_segment)} segments, CPU s each: " + ", ".join(f"{t['cpu_s']:.1f}" for t in per_segment)
-              + f"; with a core each, the estimation core takes the slowest: {result['critical_path_cpu_s']:.1f} CPU s")
     print(f"wrote {out}")
 
 

@@ -27,8 +27,8 @@ def test_marginals_of_the_last_iteration_equal_a_fresh_linearisation(problem, mo
         np.testing.assert_array_equal(got, want)
     solve = smoother.gauss_newton
 
-    def fresh_tree(G, values, with_scale, *args):
-        sol = solve(G, values, with_scale, *args)
+    def fresh_tree(G, values, with_scale, *args, **kwargs):
+        sol = solve(G, values, with_scale, *args, **kwargs)
         sol.tree = smoother._eliminate(smoother._linearize(G, sol.values, with_scale))
         return sol
 

@@ -1,11 +1,8 @@
-"""The outputs' reading ahead while the last parallel segment is smoothed (trackfusion/output_prefetch.py,
-workers.run_forked's ``while_waiting``): called once, when the first worker has finished and the
-others still run; the reference read ahead gives the metrics of the reference read afterwards,
-and a reference that cannot be read raises the same error, when asked for."""
+"""The outputs' reading ahead (trackfusion/output_prefetch.py): the reference read ahead gives the
+metrics of the reference read afterwards, and a reference that cannot be read raises the same
+error, when asked for."""
 
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import pytest
@@ -15,25 +12,9 @@ from trackfusion.evaluation.api import read_trajectory
 from trackfusion.evaluation.reference import compare_with_reference
 from trackfusion.output_prefetch import OutputPrefetch
 from trackfusion.sensors.fileio import write_csv_table
-from trackfusion.workers import can_fork, run_forked
+from trackfusion.workers import can_fork
 
 ORIGIN = {"lat_deg": 45.0, "lon_deg": 7.0, "h_m": 300.0}
-
-
-@pytest.mark.skipif(not can_fork(2), reason="needs fork and two CPUs")
-def test_while_waiting_runs_once_after_the_first_worker_and_before_the_last(tmp_path):
-    def task(i):
-        if i == 1:
-            time.sleep(2.0)
-        (tmp_path / f"done{i}").write_text("")
-        return i * 10
-
-    seen = []
-
-    def while_waiting():
-        seen.append(sorted(p.name for p in tmp_path.iterdir()))
-    assert run_forked(task, 2, while_waiting) == [0, 10]
-    assert seen == [["done0"]]
 
 
 def _reference(path, n=4000, t0=0.0):

@@ -11,6 +11,7 @@ import sys
 from typing import NoReturn
 
 from .errors import ConfigError, TrackfusionError
+from .parallel import PartWorkerDied
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -267,6 +268,10 @@ def main(argv: list[str] | None = None) -> int:
         progress.close()
         print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except PartWorkerDied as exc:  # not the input's fault: exit 1, one line
+        progress.close()
+        print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         progress.close()
         print("trackfusion: interrupted", file=sys.stderr)

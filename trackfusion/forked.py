@@ -107,21 +107,11 @@ class ForkedTask:
             self._settle(error=ForkedTaskError(f"{self.what}: stopped"))
 
 
-def wait_first(tasks: list[ForkedTask]) -> None:
-    """Return once one of ``tasks`` has finished (its child has answered or died; at once when
-    one is done already or none runs in a child); :meth:`ForkedTask.result` then takes its result."""
-    import select
-    fds = [t._fd for t in tasks if not t._done and t._fd is not None]
-    if fds and len(fds) == len(tasks):
-        select.select(fds, [], [])  # readable: the child's answer (it writes it last) or its end
-
-
 class ForkedTasks:
     """Functions run in forked children (module docstring); use as a context manager."""
 
     def __init__(self, always_fork: bool = False):
-        """``always_fork``: fork even where :func:`can_fork` says no (the caller has decided, e.g.
-        :func:`trackfusion.workers.run_forked`)."""
+        """``always_fork``: fork even where :func:`can_fork` says no (the caller has decided)."""
         self.tasks: list[ForkedTask] = []
         self.always_fork = always_fork
 

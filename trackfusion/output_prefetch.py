@@ -1,9 +1,6 @@
-"""What a run's outputs need, read and imported while the last of its parallel segments is smoothed.
+"""What a run's outputs need, read and imported while a CPU would be idle.
 
-The segments of a long run (fusion/segments.py) are smoothed in worker processes, one per CPU,
-and rarely take the same time: the first to finish leaves its CPU idle until the last one has.
-:class:`OutputPrefetch` is handed to :func:`~trackfusion.fusion.segments.smooth_in_segments` and
-called then, in the parent, to do what the run would do afterwards anyway: import the modules of
+Called (``OutputPrefetch()``) in the parent, it does what the run would do afterwards anyway: import the modules of
 the evaluation and of the report figures (matplotlib) and read the reference trajectory
 (``inputs.reference``). Its results are the same as when done later, errors included: a reference
 that cannot be read raises its error when the evaluation asks for it (:meth:`reference`), at the

@@ -31,7 +31,6 @@ from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame  # noqa: F401 (TrolleyFrame: trackfusion.pipeline's)
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.densify_forked import start_densify_forked
-from .fusion.segments import smooth_in_segments, worker_count
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .forked import ForkedTasks, can_fork as can_fork_tasks
@@ -206,6 +205,7 @@ def parse_pipeline(data: Any, source: str, base_dir: Path) -> Pipeline:
     """Validate a pipeline mapping; raises :class:`ConfigError` naming ``source`` and the field."""
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: a pipeline must be a mapping of sections")
+    _refuse_removed_keys(data, source)
     try:
         config = PipelineConfig.model_validate(data)
     except ValidationError as exc:
@@ -224,6 +224,17 @@ class _UserPaths:
 
     def errors(self) -> list[dict]:
         return [{**e, "loc": error_location(e["loc"], self.wrote_trolley)} for e in self.exc.errors()]
+
+
+#: keys that went away, and what replaced them (docs/pipeline.md "Removed keys")
+REMOVED_KEYS = {("smoother", "slow_priors"): "the parallel segments it gave priors to are gone: "
+                                            "smoother.part_s solves the run in exact time parts"}
+
+
+def _refuse_removed_keys(data: dict, source: str) -> None:
+    for (section, key), why in REMOVED_KEYS.items():
+        if isinstance(data.get(section), dict) and key in data[section]:
+            raise ConfigError(f"{source}: {section}.{key}: removed; {why}")
 
 
 def load_pipeline(path: str | os.PathLike) -> Pipeline:
@@ -530,7 +541,7 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
         def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
             started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
                                                 accel_bias, geodesy.gravity_n(pos_n, problem.origin),
-                                                earth_rate_n, max(1, worker_count(cfg.smoother) - 1)))
+                                                earth_rate_n, max(1, (cfg.smoother.workers or 1) - 1)))
         res = _smooth_batch(problem, say, on_solved, preintegrated)
         tic = time.perf_counter()
         dense = started[-1].result()
@@ -648,21 +659,16 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
                 evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
                 del stream
             else:
-                # parallel segments (fusion/segments.py); the outputs' reading and imports on the CPU the
-                # first segment to finish leaves idle (output_prefetch.py)
+                # one batch (its steps in exact time parts with smoother.part_s, fusion/partitioned.py);
+                # the reference read on the CPU the solve leaves idle (output_prefetch.py)
                 prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None,
                                           cfg.outputs.report)
-                segmented = smooth_in_segments(problem, every, say, prefetch)
-                if segmented is not None:  # the rows come densified and decimated
-                    res, dense, info["segments"] = segmented
-                    tic, rows_every = time.perf_counter(), 1
-                else:
-                    prefetch.read_in_child(background)  # on the CPU the batch solve leaves idle
-                    res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
-                    tic, rows_every = time.perf_counter(), every
+                prefetch.read_in_child(background)
+                res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
+                tic = time.perf_counter()
                 say("writing the trajectory at the output rate")
                 chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-                table = evaluation_table = trajectory_table(dense, res, chainage, rows_every)
+                table = evaluation_table = trajectory_table(dense, res, chainage, every)
                 fused_table = None
                 writer.write(table, background)  # formatted in a forked child (trackfusion/forked.py)
         timings.update(res.timings_s)

@@ -1,5 +1,4 @@
-"""The densification of a run smoothed in one batch (total-station runs, fusion/segments.py
-``independent_segments``) in forked workers: the keyframe intervals are independent
+"""The densification of a run smoothed in one batch in forked workers: the keyframe intervals are independent
 (fusion/trajectory.py), so they are cut into ``workers`` parts at a multiple of
 :func:`~.trajectory.densify`'s block, each densified in its own forked child
 (:class:`trackfusion.forked.ForkedTasks`); the parts' rows are the same arrays, bit for bit,

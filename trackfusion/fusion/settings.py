@@ -204,15 +204,13 @@ class SmootherSettings(_Strict):
     overlapping chunks (fusion/chunks.py), so memory is bounded by the chunk; ``chunk_s: null``
     solves any run as one batch (memory grows with its length: about 1.5 GB an hour at 500 Hz).
 
-    ``workers``: a run smoothed in one batch is smoothed instead as that many independent time
-    segments (each with ``overlap_s`` of data beyond its ends, blended at the joins) in as many
-    forked processes at once (fusion/segments.py, docs/solver_speed.md); null: 2 on a machine
-    with two CPUs or more, else 1 (one batch). A run that stays in one batch (total stations) is
-    densified in that many forked processes instead (fusion/densify_forked.py: the same rows).
-    ``slow_priors`` (off): each segment's IMU biases and odometer scale take priors from coarse
-    solves of the data before and after it (fusion/slow_pass.py), as one batch ties them to the
-    rest of the run; off by default: on the demo survey (no static period at its end) they made
-    the 5 m vertical MSE 0.131 mm against 0.022 mm without them (docs/solver_speed.md).
+    ``workers``: with ``part_s``, the local processes the parts of each step are solved in
+    (trackfusion/parallel.py: the same numbers with any count); the run's densification takes
+    one fewer forked processes (at least one, fusion/densify_forked.py: the same rows); null: 1.
+    Nothing here depends on the CPU count: the same log gives the same trajectory anywhere.
+
+    ``part_s``: each Gauss-Newton step is solved in time parts of this duration
+    (fusion/partitioned.py: the one-batch answer, to rounding; at least 10 s); null: in one piece.
 
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
     from the rate at which the steps shrink, is below this (fusion/convergence.py); 0: off.
@@ -225,7 +223,7 @@ class SmootherSettings(_Strict):
     chunk_s: float | None = Field(3600.0, ge=60.0)
     overlap_s: float = Field(120.0, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
-    slow_priors: bool = False
+    part_s: float | None = Field(None, ge=10.0)
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":

@@ -28,7 +28,7 @@ from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
-from .slow_states import EndCovariances, SlowPrior, replaces_start, slow_end_covariances, slow_prior_factors
+from .partitioned import Partition, PartitionedSolver, cut_times
 from .wheel_path import wheel_path_builder
 from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
@@ -72,7 +72,6 @@ class SmootherResult:
     rejected_prism: list[dict] = field(default_factory=list)  # [{"station", "t_s", "reason", "nis"}]
     hand_over: "HandOver | None" = None  # the state at ``hand_over_t_s`` (fusion/chunks.py)
     station_cov: np.ndarray | None = None  # (8J,8J) joint marginal covariance of station_states (estimated ones)
-    end_cov: "EndCovariances | None" = None  # first and last bias and scale states' marginals (fusion/slow_states.py)
 
 
 @dataclass
@@ -231,7 +230,6 @@ class _Builder:
         self.counts: dict[str, int] = {}
         self.join: HandOver | None = None
         self.soft = _SoftJoin()
-        self.slow: list[SlowPrior] | None = None  # a segment's priors on its slow states (fusion/slow_states.py)
 
     def _count(self, name: str, n: int) -> None:
         self.counts[name] = self.counts.get(name, 0) + int(n)
@@ -247,15 +245,13 @@ class _Builder:
         if self.join is not None:  # the previous chunk's segment, then one random-walk step
             bias0 = gtsam.imuBias.ConstantBias(self.join.bias[:3], self.join.bias[3:])
             sig = np.sqrt(self.join.bias_var + rw_var)
-        replaced = replaces_start(self.slow)  # the data before the segment stands for it (slow_priors)
-        if not replaced:
-            self.g.add(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
+        self.g.add(gtsam.PriorFactorConstantBias(B(0), bias0, gtsam.noiseModel.Diagonal.Sigmas(sig)))
         n_seg = int(self.bias_seg[-1]) + 1
         rw = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(rw_var))
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorConstantBias(B(m), B(m + 1), gtsam.imuBias.ConstantBias(), rw))
         self._count("imu", len(self.pims))
-        self._count("bias_prior", 0 if replaced else 1)
+        self._count("bias_prior", 1)
         self._count("bias_random_walk", n_seg - 1)
 
     def anchor(self, absolute: bool) -> None:
@@ -279,14 +275,6 @@ class _Builder:
         self.g.add(gtsam.PriorFactorVector(V(0), j.vel_n, gtsam.noiseModel.Diagonal.Sigmas(sigma[6:9])))
         self.soft.keys, self.soft.cov = [X(0), V(0)], j.cov[:9, :9]
         self._count("hand_over", 2)
-
-    def slow_priors(self) -> None:
-        """A segment's priors on its bias and scale states from the data outside it (fusion/slow_states.py)."""
-        factors = slow_prior_factors(self.slow, self.t, self.bias_seg, self.seg, self.pb.imu_noise,
-                                     self.pb.factors.odometer)
-        for f in factors:
-            self.g.add(f)
-        self._count("slow_prior", len(factors))
 
     def zupt(self) -> None:
         st = self.pb.factors.zupt
@@ -431,8 +419,7 @@ class _Builder:
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
         if self.join is not None and self.join.scale is not None:  # the previous chunk's, then one step
             scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
-        if not replaces_start(self.slow, scale=True):
-            self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
+        self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
         for m in range(n_seg - 1):
             self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
@@ -552,12 +539,15 @@ class _Solved:
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None) -> _Solved:
+                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None,
+                 partition: "Partition | None" = None) -> _Solved:
     """Gauss-Newton with step halving (see :class:`_Solved`). Stops when the cost falls by less
     than ``rtol`` (relative) or the predicted remaining correction is below ``step_tol_m``
     (fusion/convergence.py). ``previous``: the solve of the same graph that ended at ``values``
     (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
-    and when its steps have converged already its tree is returned without a new iteration."""
+    and when its steps have converged already its tree is returned without a new iteration.
+    ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
+    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`)."""
     state = previous.state if previous is not None else _State.of(values, with_scale)
     cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state)
     it = 0
@@ -565,11 +555,15 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     history = previous.history.copy() if previous is not None else StepHistory()
     if history.converged(step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
+    solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
     for it in range(1, max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state)
-        ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-        tree = _eliminate(gfg, ordering)
-        delta = tree.optimize()
+        if solver is not None:
+            delta, tree = solver.solve(gfg)
+        else:
+            ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+            tree = _eliminate(gfg, ordering)
+            delta = tree.optimize()
         step, new_cost = 1.0, np.inf
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
@@ -753,7 +747,6 @@ def preintegrate_problem(problem: FusionProblem) -> Preintegrated:
 
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
            hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
-           slow_priors: "list[SlowPrior] | None" = None, end_covariances: bool = False,
            sigmas: bool = True, on_solved: Callable[..., None] | None = None,
            preintegrated: "Preintegrated | None" = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
@@ -764,10 +757,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     result carries the state at the keyframe nearest to that time (``SmootherResult.hand_over``).
     ``initial``: an earlier solution of the same run (e.g. on coarser keyframes,
     registration/two_stage.py) that the estimate starts from instead (:func:`_warm_start`).
-    ``slow_priors``: priors on the bias and scale states of a time segment from the data outside
-    it (fusion/segments.py, fusion/slow_states.py); with ``end_covariances`` the result carries the
-    marginal covariances of the first and last bias and scale states (``SmootherResult.end_cov``);
-    without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
+    Without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
     ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
     result's arrays once the solve is done, before the marginals (the pipeline starts the
     densification in forked children there, fusion/densify_forked.py). ``preintegrated``: this
@@ -819,7 +809,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
     bias_seg[-1] = bias_seg[-2]
     b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg, bias_seg)
-    b.join, b.slow = join, slow_priors
+    b.join = join
     values = gtsam.Values()
     for k in range(t_key.size):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
@@ -855,8 +845,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         b.wheel_path(omega_ie_n)
     if problem.inclinometer is not None and fs.inclinometer.enabled:
         b.inclinometer()
-    if slow_priors:
-        b.slow_priors()
     base_graph, base_builders, base_counts, base_soft = b.g, list(b.builders), dict(b.counts), b.soft.copy()
     timings["build_s"] = time.perf_counter() - tic
 
@@ -875,6 +863,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     gating = gnss is not None or prisms is not None
     rtol = problem.smoother.relative_tolerance
     step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
+    partition = _partition(problem, t_key, bias_seg, seg)
     for round_ in range(4):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
@@ -886,7 +875,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         # a gating round need not converge to the last digit before its gate: the tolerance is
         # tightened once the gate rejects nothing more (below)
         sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol)
+                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol,
+                           partition=partition)
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
@@ -905,7 +895,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             newly_rejected |= bool(np.any(bad))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
-                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol)
+                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol,
+                                   partition)
                 values, iterations = sol.values, iterations + sol.iterations
             break
     timings["solve_s"] = time.perf_counter() - tic
@@ -921,11 +912,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     tree = _eliminate(gfg) if b.soft.keys else sol.tree
     sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
         else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
-    end_cov = None
-    if end_covariances:  # by QR on the graph at the estimate (the Bayes tree's marginals of B and S are wrong here)
-        end_gfg = gfg if gfg is not None and not b.soft.keys else _linearize(G, values, with_scale)
-        end_cov = slow_end_covariances(lambda keys: joint_marginal_covariance(end_gfg, keys), int(bias_seg[-1]),
-                                       int(seg[-1]) if with_scale else None)
     hand_over = None
     if hand_over_t_s is not None:
         k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
@@ -938,7 +924,19 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_states=_station_states(prisms, state),
                           station_cov=_station_covariance(prisms, sol.tree),
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
-                          hand_over=hand_over, end_cov=end_cov)
+                          hand_over=hand_over)
+
+
+def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None
+               ) -> Partition | None:
+    """The time parts of ``smoother.part_s`` (fusion/partitioned.py), or None: one batch."""
+    part_s = problem.smoother.part_s
+    if part_s is None:
+        return None
+    cuts = cut_times(float(t_key[0]), float(t_key[-1]), part_s)
+    gnss = problem.gnss if problem.factors.gnss.enabled else None
+    return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None,
+                     problem.smoother.workers or 1)
 
 
 def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray

@@ -1,0 +1,111 @@
+"""Local worker processes for the smoother's time parts (fusion/partitioned.py).
+
+One Gauss-Newton step with ``W`` workers: the parts are dealt into ``W`` contiguous groups;
+group 0 is worked on in this process, each other group in a child forked after the
+linearisation (it reads the linearised graph from the parent's memory as it was at the fork,
+nothing of it pickled). A child reduces its parts and sends back only their reduced factors on
+the separator, waits for the separator's solution, back-substitutes its parts and sends back
+their steps, and exits. The numbers do not depend on ``W``: each part is reduced and
+back-substituted the same way wherever it runs.
+
+A child that dies (killed, out of memory) ends the step with :class:`PartWorkerDied` naming
+its parts; every child has exited when a step returns or raises.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+from typing import Any, Callable
+
+from .workers import can_fork, fork_context
+
+
+class PartWorkerDied(RuntimeError):
+    """A worker process of the smoother's parts ended without its answer (exit code 1 on the
+    command line: not a fault of the input)."""
+
+
+def groups_of(n_parts: int, workers: int) -> list[list[int]]:
+    """The parts ``0 .. n_parts - 1`` in ``min(workers, n_parts)`` contiguous groups."""
+    w = max(1, min(workers, n_parts))
+    bounds = [round(i * n_parts / w) for i in range(w + 1)]
+    return [list(range(bounds[i], bounds[i + 1])) for i in range(w)]
+
+
+def _child(conn, reduce: Callable[[], Any], back_substitute: Callable[[Any], Any]) -> None:
+    """A child's step: its answers as ``(True, value)``, or its exception as ``(False, exc)``."""
+    try:
+        try:
+            conn.send_bytes(pickle.dumps((True, reduce())))
+            given = pickle.loads(conn.recv_bytes())
+            conn.send_bytes(pickle.dumps((True, back_substitute(given))))
+        except Exception as exc:  # noqa: BLE001 (raised in the parent)
+            conn.send_bytes(pickle.dumps((False, exc)))
+    finally:
+        conn.close()
+        os._exit(0)
+
+
+def _name(parts: list[int]) -> str:
+    return f"part {parts[0] + 1}" if len(parts) == 1 else f"parts {parts[0] + 1}-{parts[-1] + 1}"
+
+
+def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
+             solve: Callable[[list[Any]], Any], back_substitute: Callable[[list[int], Any], Any]
+             ) -> tuple[Any, list[Any], list[Any]]:
+    """One step over ``groups`` of parts: ``reduce(group)`` per group (children for groups 1..),
+    ``given = solve([reduced per group])`` here, ``back_substitute(group, given)`` per group.
+    Returns ``(given, reduced per group, back-substituted per group)``. Without forking (one
+    group, or :func:`~trackfusion.workers.can_fork` false) everything runs here in turn."""
+    if len(groups) < 2 or not can_fork(len(groups)):
+        reduced = [reduce(g) for g in groups]
+        given = solve(reduced)
+        return given, reduced, [back_substitute(g, given) for g in groups]
+    ctx = fork_context()
+    children = []
+    try:
+        for g in groups[1:]:
+            parent_end, child_end = ctx.Pipe()
+            proc = ctx.Process(target=_child, args=(child_end, lambda g=g: reduce(g),
+                                                    lambda given, g=g: back_substitute(g, given)), daemon=True)
+            proc.start()
+            child_end.close()
+            children.append((g, proc, parent_end))
+        reduced = [reduce(groups[0])] + [_receive(g, proc, conn) for g, proc, conn in children]
+        given = solve(reduced)
+        payload = pickle.dumps(given)
+        for g, proc, conn in children:
+            _send(g, proc, conn, payload)
+        done = [back_substitute(groups[0], given)] + [_receive(g, proc, conn) for g, proc, conn in children]
+        return given, reduced, done
+    finally:
+        for _, proc, conn in children:
+            conn.close()
+            if proc.is_alive():
+                proc.kill()
+            proc.join()
+
+
+def _died(group: list[int], proc) -> PartWorkerDied:
+    proc.join(timeout=5.0)
+    code = proc.exitcode
+    how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+    return PartWorkerDied(f"the smoother's worker process of {_name(group)} died ({how})")
+
+
+def _receive(group: list[int], proc, conn) -> Any:
+    try:
+        ok, value = pickle.loads(conn.recv_bytes())
+    except (EOFError, OSError):
+        raise _died(group, proc) from None
+    if not ok:
+        raise value
+    return value
+
+
+def _send(group: list[int], proc, conn, payload: bytes) -> None:
+    try:
+        conn.send_bytes(payload)
+    except (BrokenPipeError, OSError):
+        raise _died(group, proc) from None
