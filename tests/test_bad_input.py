@@ -19,6 +19,7 @@ import pytest
 import yaml
 from mcap.writer import CompressionType, Writer
 
+from trackfusion.outdir import MANIFEST
 from trackfusion.cli import main
 from trackfusion.errors import TrackfusionError
 from trackfusion.sensors.fileio import read_csv_table, write_csv_table
@@ -251,10 +252,11 @@ def test_a_run_failing_while_writing_leaves_no_trajectory(survey, tmp_path, caps
     case = _case_dir(survey, tmp_path)
     (case / "out").mkdir()
     (case / "out" / "metrics.json").write_text("{}\n")      # an older result stays untouched
+    (case / "out" / MANIFEST).write_text('{"files": ["metrics.json"]}')  # (an earlier run's: trackfusion/outdir.py)
     before = _digests(case)
     assert main(["run", str(case / "pipeline.yaml"), "--out", str(case / "out")]) == 2
     _one_error_line(capsys, "disk full")
-    assert sorted(p.name for p in (case / "out").iterdir()) == ["metrics.json"]
+    assert sorted(p.name for p in (case / "out").iterdir()) == [MANIFEST, "metrics.json"]  # no staging, no lock
     assert (case / "out" / "metrics.json").read_text() == "{}\n"
     assert not [p for p in case.iterdir() if p.name.startswith(".out-")]
     assert _digests(case) == before

@@ -15,7 +15,7 @@ from trackfusion.sensors.mcap_log import _scan_file, copy_log, read_log, write_l
 from test_mcap_log import small_log
 
 ORIGIN = Origin(22.9, 112.9, 20.0)
-EXTRA_TOPICS = {"/trajectory/pose", "/trajectory/fix", "/trajectory/path"}
+EXTRA_TOPICS = {"/trajectory/pose", "/trajectory/fix", "/trajectory/tf", "/trajectory/path"}
 
 
 def _table(n=300):
@@ -121,11 +121,14 @@ def test_pose_and_fix_payloads_are_the_json_of_their_messages():
     n = 500
     ns = np.sort(rng.integers(0, 10**13, n))
     pos, q, var, llh = (rng.normal(size=(n, k)) * 10.0 ** rng.integers(-12, 8, (n, k)) for k in (3, 4, 3, 3))
-    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, llh)
+    poses, fixes, transforms = _pose_and_fix_payloads(ns, pos, q, var, llh)
     for k in range(n):
         stamp = _stamp(int(ns[k]))
         assert poses[k] == _dumps({"timestamp": stamp, "frame_id": "n", "pose": {
             "position": dict(zip("xyz", pos[k].tolist())), "orientation": dict(zip("xyzw", q[k].tolist()))}})
+        assert transforms[k] == _dumps({"timestamp": stamp, "parent_frame_id": "n", "child_frame_id": "b",
+                                        "translation": dict(zip("xyz", pos[k].tolist())),
+                                        "rotation": dict(zip("xyzw", q[k].tolist()))})
         v = var[k].tolist()
         assert fixes[k] == _dumps({"timestamp": stamp, "frame_id": "n", "latitude": llh[k, 0], "longitude": llh[k, 1],
                                    "altitude": llh[k, 2], "position_covariance": [v[0], 0.0, 0.0, 0.0, v[1], 0.0,
@@ -150,3 +153,34 @@ def test_inspect_summarises_a_fused_log_with_its_foxglove_topics(tmp_path, capsy
     assert summary["/trajectory/path"].count == 1
     assert main(["inspect", str(tmp_path / "fused.mcap")]) == 0
     assert "foxglove.LocationFix" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("compression", [CompressionType.ZSTD, CompressionType.LZ4, CompressionType.NONE])
+def test_a_copy_on_the_absolute_clock_moves_only_the_times(tmp_path, compression):
+    """With the survey's epoch the copied records keep their bytes but for log and publish
+    times; chunk CRCs and the summary's times follow."""
+    _foreign(tmp_path / "raw.mcap", compression, chunked=True)
+    log = read_log(tmp_path / "raw.mcap")
+    offset = 1_717_401_600 * 10**9
+    copy_log(tmp_path / "moved.mcap", log.source, time_offset_ns=offset)
+    raw, raw_meta, raw_summary = _contents(tmp_path / "raw.mcap")
+    moved, moved_meta, summary = _contents(tmp_path / "moved.mcap")  # (validate_crcs)
+    assert moved_meta == raw_meta and set(moved) == set(raw)
+    for topic, msgs in raw.items():
+        assert moved[topic] == [m[:4] + (m[4] + offset, m[5]) for m in msgs], topic
+    assert summary.statistics.message_start_time == raw_summary.statistics.message_start_time + offset
+    assert _scan_file(tmp_path / "moved.mcap", False, None).problem is None
+    with open(tmp_path / "moved.mcap", "rb") as fh:  # the writer's publish times of 0, moved as well
+        assert {m.publish_time for _s, _c, m in make_reader(fh).iter_messages()} == {offset}
+
+
+def test_our_log_copied_on_the_absolute_clock(tmp_path):
+    write_log(tmp_path / "raw.mcap", small_log(3000))
+    log = read_log(tmp_path / "raw.mcap")
+    copy_log(tmp_path / "moved.mcap", log.source, time_offset_ns=10**18)
+    raw, _, _ = _contents(tmp_path / "raw.mcap")
+    moved, _, _ = _contents(tmp_path / "moved.mcap")
+    for topic, msgs in raw.items():
+        assert moved[topic] == [m[:4] + (m[4] + 10**18, m[5]) for m in msgs], topic
+    with open(tmp_path / "moved.mcap", "rb") as fh:
+        assert all(m.publish_time == m.log_time for _s, _c, m in make_reader(fh).iter_messages())

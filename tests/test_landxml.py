@@ -484,7 +484,7 @@ def test_a_run_with_the_landxml_design_gives_the_yaml_designs_geometry(tmp_path)
     worst = {col: float(np.nanmax(np.abs(a[col] - b[col]))) for col in a}  # measured: all 0 as written
     for col in a:
         assert np.array_equal(np.isnan(a[col]), np.isnan(b[col])), col
-        assert worst[col] < 1e-6, col
+        assert worst[col] < 1e-6 or np.isnan(a[col]).all(), col  # (all NaN: not measured, no gauge sensor)
 
 
 _TOKENS = [m.span() for m in re.finditer(r'"[^"]*"|>[^<]+<', CURVE_XML.read_text())]

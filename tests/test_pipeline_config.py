@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from trackfusion.cli import main
+from trackfusion.outdir import MANIFEST
 
 VALID = {
     "name": "t", "inputs": {"log": "log.mcap"},
@@ -56,9 +57,10 @@ def test_existing_output_untouched_on_failure(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     (out / "trajectory.csv").write_text("old\n")
+    (out / MANIFEST).write_text('{"files": ["trajectory.csv"]}')  # an earlier run's output (trackfusion/outdir.py)
     assert main(["run", str(cfg), "--out", str(out)]) == 2
     assert "log.mcap" in capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["trajectory.csv"]
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST, "trajectory.csv"]
     assert (out / "trajectory.csv").read_text() == "old\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["log.mcap", "out", "p.yaml"]
 

@@ -166,19 +166,25 @@ def _messages(path, topics=None) -> dict[str, list]:
 
 
 def test_fused_mcap_holds_the_trajectory_and_copies_the_raw_topics(run_dir):
+    from trackfusion.sensors.fused import survey_epoch_ns
+    from trackfusion.sensors.mcap_log import read_log
+
     fused = _messages(run_dir / "out" / "fused.mcap")
     raw = _messages(run_dir / "log.mcap")
+    epoch = survey_epoch_ns(read_log(run_dir / "log.mcap", topics=[]).metadata)
+    assert epoch > 1.7e18  # the simulated survey's epoch: fused.mcap on the absolute clock
     for topic, msgs in raw.items():
-        assert fused[topic] == msgs, topic  # schema, encoding, log_time and bytes identical
+        moved = [(s, e, t + epoch, d) for s, e, t, d in msgs]
+        assert fused[topic] == moved, topic  # schema, encoding and bytes identical, log_time + the epoch
     assert set(fused) == set(raw) | {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
-                                     "/track/rails_geojson"}  # the run writes geometry.csv, so rails too
+                                     "/track/rails_geojson", "/trajectory/tf"}  # the run writes geometry.csv, so rails too
     poses, fixes = fused["/trajectory/pose"], fused["/trajectory/fix"]
     assert {p[:2] for p in poses} == {("foxglove.PoseInFrame", "json")}
     assert {f[:2] for f in fixes} == {("foxglove.LocationFix", "json")}
     traj = read_csv_table(run_dir / "out" / "trajectory.csv")
     assert len(poses) == pytest.approx((traj["t_s"][-1] - traj["t_s"][0]) * 10, abs=2)  # 10 Hz
     p = json.loads(poses[5][3])
-    i = int(np.argmin(np.abs(traj["t_s"] - poses[5][2] / 1e9)))
+    i = int(np.argmin(np.abs(traj["t_s"] - (poses[5][2] - epoch) / 1e9)))
     assert p["frame_id"] == "n" and p["pose"]["position"]["x"] == pytest.approx(traj["e_m"][i], abs=1e-9)
     q = p["pose"]["orientation"]
     assert q["w"] == pytest.approx(traj["qw"][i]) and np.isclose(sum(v * v for v in q.values()), 1.0)
@@ -199,7 +205,7 @@ def test_fused_mcap_draws_the_rails_of_geometry_csv(run_dir, full_dir, tmp_path)
     geometry = read_csv_table(full_dir / "geometry.csv")
     write_fused_mcap(tmp_path / "f.mcap", traj, Origin(42.86, 90.17, 60.0), geometry=geometry)
     msgs = _messages(tmp_path / "f.mcap")
-    assert set(msgs) == {"/trajectory/pose", "/trajectory/fix", "/trajectory/path", "/track/rails",
+    assert set(msgs) == {"/trajectory/pose", "/trajectory/fix", "/trajectory/tf", "/trajectory/path", "/track/rails",
                          "/track/rails_geojson"}
     (name, enc, t_ns, data), = msgs["/track/rails"]
     assert name == "foxglove.SceneUpdate" and t_ns == msgs["/trajectory/pose"][0][2]

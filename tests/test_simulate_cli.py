@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
+from trackfusion.outdir import MANIFEST
 from trackfusion.cli import main
 from trackfusion.sensors.fileio import read_csv_table, read_sidecar
 from trackfusion.sensors.mcap_log import read_log
@@ -24,7 +25,8 @@ def runs(tmp_path_factory):
 
 def test_writes_every_file_with_its_contract(runs):
     out = runs / "a"
-    assert sorted(p.name for p in out.iterdir()) == sorted(FILES)
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted(FILES)
+    assert json.loads((out / MANIFEST).read_text())["files"] == sorted(FILES)  # what the run wrote
     truth = read_csv_table(out / "truth.csv", required=list(TRUTH_COLUMNS))
     assert list(truth)[:12] == list(TRUTH_COLUMNS)
     assert np.median(np.diff(truth["t_s"])) <= 1 / 50  # at least 50 rows per second

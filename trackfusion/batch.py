@@ -58,7 +58,7 @@ def _figures(metrics: dict) -> dict[str, Any]:
     return out
 
 
-def run_one(pipeline_path: str, out_dir: str | None = None) -> SurveyOutcome:
+def run_one(pipeline_path: str, out_dir: str | None = None, force: bool = False) -> SurveyOutcome:
     """Run one survey; never raises (a failure is returned in the outcome). Runs in workers."""
     from .pipeline import load_pipeline, run
 
@@ -67,7 +67,7 @@ def run_one(pipeline_path: str, out_dir: str | None = None) -> SurveyOutcome:
     try:
         pipeline = load_pipeline(pipeline_path)
         name = pipeline.config.name
-        result = run(pipeline, out_dir)
+        result = run(pipeline, out_dir, force=force)
         return SurveyOutcome(pipeline_path, name, True, time.perf_counter() - tic, str(result.out_dir),
                              figures=_figures(result.metrics))
     except TrackfusionError as exc:
@@ -130,13 +130,28 @@ def _out_dirs(paths: Sequence[str], out_root: str | None) -> list[str | None]:
     return [str(Path(out_root) / s) for s in stems]
 
 
-def _local(jobs, workers: int, say) -> list[SurveyOutcome]:
+def _check_out_dirs(paths: Sequence[str], out_dirs: Sequence[str | None], force: bool) -> None:
+    """Every survey's output folder checked before any survey starts
+    (:class:`~trackfusion.outdir.OutputFolder`); two surveys writing one folder are refused."""
+    from .outdir import OutputFolder
+    seen: dict[Path, str] = {}
+    for p, o in zip(paths, out_dirs):
+        folder = Path(o) if o is not None else Path(p).resolve().parent / "out"
+        key = folder.resolve()
+        if key in seen:
+            raise ConfigError(f"{p}: writes into {folder}/ as {seen[key]} does; give them distinct folders "
+                              "(--out-root, or one folder per pipeline YAML)")
+        seen[key] = p
+        OutputFolder(folder, force).check()
+
+
+def _local(jobs, workers: int, say, force: bool = False) -> list[SurveyOutcome]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     outcomes: dict[int, SurveyOutcome] = {}
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(run_one, p, o): (i, p) for i, (p, o) in enumerate(jobs)}
+        futures = {pool.submit(run_one, p, o, force): (i, p) for i, (p, o) in enumerate(jobs)}
         for fut in as_completed(futures):
             i, p = futures[fut]
             try:
@@ -148,7 +163,7 @@ def _local(jobs, workers: int, say) -> list[SurveyOutcome]:
     return [outcomes[i] for i in range(len(jobs))]
 
 
-def _dask(jobs, workers: int, address: str | None, say) -> list[SurveyOutcome]:
+def _dask(jobs, workers: int, address: str | None, say, force: bool = False) -> list[SurveyOutcome]:
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
@@ -167,7 +182,7 @@ def _dask(jobs, workers: int, address: str | None, say) -> list[SurveyOutcome]:
     say(f"batch: dask scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers")
     outcomes: dict[int, SurveyOutcome] = {}
     try:
-        futures = [client.submit(run_one, p, o, pure=False, key=f"survey-{i}-{Path(p).stem}")
+        futures = [client.submit(run_one, p, o, force, pure=False, key=f"survey-{i}-{Path(p).stem}")
                    for i, (p, o) in enumerate(jobs)]
         index = {f.key: i for i, f in enumerate(futures)}
         for fut in as_completed(futures):
@@ -193,10 +208,11 @@ def _line(o: SurveyOutcome, done: int, total: int) -> str:
 
 def run_batch(pipelines: Sequence[str | os.PathLike], engine: Engine = "local", address: str | None = None,
               workers: int | None = None, out_root: str | None = None,
-              progress: Callable[[str], None] | None = None) -> BatchResult:
+              progress: Callable[[str], None] | None = None, force: bool = False) -> BatchResult:
     """Run every pipeline YAML (module docstring); ``workers`` defaults to the CPU count (local)
     or 2 (LocalCluster); ``out_root``: write survey ``X.yaml`` to ``out_root/X/`` instead of
-    ``out/`` beside the YAML."""
+    ``out/`` beside the YAML. Every output folder is checked first (``force``: write beside
+    files trackfusion did not write; docs/robustness.md)."""
     say = progress or (lambda _m: None)
     paths = [str(Path(p)) for p in pipelines]
     if not paths:
@@ -208,10 +224,11 @@ def run_batch(pipelines: Sequence[str | os.PathLike], engine: Engine = "local", 
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers: must be at least 1, got {workers}")
     jobs = list(zip(paths, _out_dirs(paths, out_root)))
+    _check_out_dirs(paths, [o for _p, o in jobs], force)
     tic = time.perf_counter()
     say(f"batch: {len(jobs)} surveys on the {engine} engine")
     if engine == "local":
-        outcomes = _local(jobs, workers or min(len(jobs), os.cpu_count() or 1), say)
+        outcomes = _local(jobs, workers or min(len(jobs), os.cpu_count() or 1), say, force)
     else:
-        outcomes = _dask(jobs, workers or 2, address, say)
+        outcomes = _dask(jobs, workers or 2, address, say, force)
     return BatchResult(engine, outcomes, time.perf_counter() - tic)

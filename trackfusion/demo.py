@@ -43,16 +43,20 @@ def closing_summary(result: RunResult, inputs_dir: Path) -> str:
 
 
 def run_demo(out_dir: str | Path, progress: Callable[[str], None] | None = None, seed: int = 0,
-             overrides: Sequence[str] = ()) -> bool:
+             overrides: Sequence[str] = (), force: bool = False) -> bool:
     """Simulate, fuse, evaluate and report the demo survey in ``out_dir``; True when it passes.
 
     overrides: scenario ``key=value`` overrides (as ``trackfusion simulate --set``), e.g. a
-    shorter survey."""
+    shorter survey. ``out_dir`` and its ``out/`` are checked before the simulation
+    (:class:`~trackfusion.outdir.OutputFolder`; ``force``: write beside files trackfusion did not write)."""
+    from .outdir import OutputFolder, check_all
     say = progress or print
     out = Path(out_dir)
+    check_all([OutputFolder(out, force), OutputFolder(out / "out", force)])
     wall = time.perf_counter()
     say(f"demo: step 1/3: simulating scenario {DEMO_SCENARIO!r} (seed {seed}) into {out}/")
-    result = simulate_to_dir(DEMO_SCENARIO, out, seed=seed, ideal=False, overrides=list(overrides), progress=say)
+    result = simulate_to_dir(DEMO_SCENARIO, out, seed=seed, ideal=False, overrides=list(overrides), progress=say,
+                             force=force)
     print(result.format())
     print()
     say("demo: step 2/3: checking the raw log (trackfusion inspect)")
@@ -60,7 +64,7 @@ def run_demo(out_dir: str | Path, progress: Callable[[str], None] | None = None,
     print()
     say(f"demo: step 3/3: fusing, evaluating against the truth and writing the report "
         f"(trackfusion run {out / 'pipeline.yaml'})")
-    fused = run(load_pipeline(out / "pipeline.yaml"), out / "out", progress=say)
+    fused = run(load_pipeline(out / "pipeline.yaml"), out / "out", progress=say, force=force)
     print(format_summary(fused))
     print()
     print(closing_summary(fused, out))

@@ -59,3 +59,8 @@ class ReportError(TrackfusionError):
 
 class VisionError(TrackfusionError):
     """Camera-laser input is invalid (unreadable image, calibration set or file, ...)."""
+
+
+class OutputError(TrackfusionError):
+    """An output folder or file cannot or must not be written (a file where a folder is meant,
+    not writable, holding files trackfusion did not write, locked by another run, ...)."""

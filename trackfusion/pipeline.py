@@ -14,17 +14,13 @@ written to the output directory unless the whole run succeeds.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterator, Literal, Mapping
+from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from . import geodesy
@@ -246,11 +242,9 @@ def load_pipeline(path: str | os.PathLike) -> Pipeline:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{p}: pipeline file not found")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    return parse_pipeline(data, str(p), p.resolve().parent)
+    from .yamlio import load_yaml
+    return parse_pipeline(load_yaml(p, "pipeline file"), str(p), p.resolve().parent)
+
 
 
 def _check_inputs(pipeline: Pipeline) -> None:
@@ -315,6 +309,9 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> t
     c_b_s = imu_axes.axes_matrix(cfg.inputs.imu_axes)
     log.imu = imu_axes.to_body(log.imu, c_b_s)
     imu_axes.check_imu_frame(log.imu, str(path), c_b_s, "inputs.imu_axes")
+    if cfg.outputs.fused_mcap:  # fused.mcap's clock: a bad survey.epoch_utc refused before the computing
+        from .sensors.fused import survey_epoch_ns
+        survey_epoch_ns(log.metadata, str(path))
     return log, damage
 
 
@@ -578,11 +575,38 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
 
 
 def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
-        progress: Callable[[str], None] | None = None) -> RunResult:
-    """Process a survey (module docstring). ``out_dir`` defaults to ``out/`` beside the YAML."""
+        progress: Callable[[str], None] | None = None, force: bool = False) -> RunResult:
+    """Process a survey (module docstring). ``out_dir`` defaults to ``out/`` beside the YAML;
+    it is checked and locked before anything is read (:class:`~trackfusion.outdir.OutputFolder`;
+    ``force``: write beside files trackfusion did not write)."""
+    from .outdir import OutputFolder
+    out = Path(out_dir) if out_dir is not None else pipeline.base_dir / "out"
+    folder = OutputFolder(out, force, inputs=input_paths(pipeline), command="trackfusion run", writes=RUN_FILES)
+    with folder.locked():
+        return _run(pipeline, folder, progress)
+
+
+#: the files a run may write into its output folder
+RUN_FILES = ("trajectory.csv", "trajectory.json", "metrics.json", "geometry.csv", "geometry.json", "fused.mcap",
+             "report.html")
+
+
+def input_paths(pipeline: Pipeline) -> list[Path]:
+    """The files a run reads: the YAML, the log, the reference, the design and the tolerance table."""
+    cfg = pipeline.config
+    paths = [Path(pipeline.source)] + [pipeline.path(v) for v in (cfg.inputs.log, cfg.inputs.reference,
+                                                                   cfg.inputs.design) if v is not None]
+    tolerances = getattr(cfg.geometry, "tolerances", None)
+    if isinstance(tolerances, str):
+        paths.append(pipeline.path(tolerances))
+    return paths
+
+
+def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = None) -> RunResult:
+    """:func:`run` in its locked output folder (an :class:`~trackfusion.outdir.OutputFolder`)."""
     say = progress or (lambda _m: None)
     cfg = pipeline.config
-    out = Path(out_dir) if out_dir is not None else pipeline.base_dir / "out"
+    out = folder.path
     wall = time.perf_counter()
     timings: dict[str, float] = {}
     tic = time.perf_counter()
@@ -613,17 +637,17 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}"
             + (f"; keyframes every {cfg.keyframes.spacing_without_wheel_path_s:g} s (keyframes.spacing_without_wheel_path_s)"
                if cfg.keyframes.spacing_without_wheel_path_s else ""))
-    with _staging(out) as stage, ForkedTasks() as background:  # background: outputs written in forked children
+    with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
             prefetch = OutputPrefetch(None, False)  # (nothing read ahead but for parallel segments)
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
                 from .sensors.spill import SpillArrays, SpilledImu
-                spilled = SpilledImu(problem.imu, out.parent)  # the IMU read from disk chunk by chunk
+                spilled = SpilledImu(problem.imu, stage)  # the IMU read from disk chunk by chunk
                 log.imu = spilled.imu
                 problem = replace(problem, imu=spilled.imu)
                 release_free_memory()  # the IMU arrays and preprocessing's temporaries
-                kept = SpillArrays(out.parent)  # the rows the geometry reads at the end
+                kept = SpillArrays(stage)  # the rows the geometry reads at the end
 
                 def after_chunk():
                     spilled.release()
@@ -660,6 +684,8 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
         # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
         from .track.geometry import geometry_for_run
         tic_geometry = time.perf_counter()
+        if cfg.geometry.enabled:
+            say("computing the track geometry")
         geometry = geometry_for_run(pipeline, problem if geometry_imu is None else replace(problem, imu=geometry_imu),
                                     res, dense, chainage, log.gauge)
         if geometry is not None:
@@ -719,22 +745,6 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
     return res, stream
 
 
-@contextlib.contextmanager
-def _staging(out: Path) -> Iterator[Path]:
-    """A staging folder beside ``out`` for the run's files: on success each file is moved into
-    ``out`` (created when missing); on failure the folder goes with everything in it, so a
-    failed run leaves nothing in ``out`` (not even part of a trajectory.csv)."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}-", dir=out.parent))
-    try:
-        yield stage
-        out.mkdir(parents=True, exist_ok=True)
-        for p in sorted(stage.iterdir()):
-            os.replace(p, out / p.name)
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
-
-
 def _trajectory_writer(path: Path, origin: geodesy.Origin, cfg: PipelineConfig):
     """trajectory.csv + sidecar, written block by block (:class:`~trackfusion.sensors.fileio.CsvTableWriter`)."""
     from .sensors.fileio import CsvTableWriter
@@ -747,7 +757,7 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
                   origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None,
                   fused_table: dict[str, np.ndarray] | None = None, early=None,
                   background: ForkedTasks | None = None) -> list[str]:
-    """Write the outputs but trajectory.csv into the staging folder ``stage`` (:func:`_staging`;
+    """Write the outputs but trajectory.csv into the staging folder ``stage`` (:meth:`~trackfusion.outdir.OutputFolder.staging`;
     ``out`` is the folder they go to); returns the names of all staged files. ``table``: the
     whole trajectory.csv table, or None when it is only on disk (a run in chunks);
     ``fused_table``: the trajectory rows fused.mcap shows when not ``table`` (a long run's rows

@@ -446,6 +446,17 @@ def geometry_section(run: RunFiles) -> str:
     return _section("geometry", "Track geometry", "".join(parts))
 
 
+def _measured(columns: dict[str, np.ndarray], unmeasured: list[str]) -> dict[str, np.ndarray]:
+    """The columns holding any finite value; the names of the others are appended to ``unmeasured``."""
+    kept = {}
+    for name, values in columns.items():
+        if np.isfinite(np.asarray(values, dtype=float)).any():
+            kept[name] = values
+        else:
+            unmeasured.append(name)
+    return kept
+
+
 def time_sync_section(m: dict) -> str:
     ts = m.get("time_sync")
     if not ts:

@@ -352,7 +352,7 @@ class TotalStationSpec(_Spec):
 PrismTruth = Union[Callable[[np.ndarray], np.ndarray], np.ndarray]
 
 
-def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handover]) -> list[tuple[str, float, float]]:
+def facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handover]) -> list[tuple[str, float, float]]:
     """(station, t_start, t_end) [s, IMU clock] during which the prism faces each station, in order.
 
     Each hand-over happens at the first truth epoch at which the chainage has crossed (or reached)
@@ -371,18 +371,23 @@ def _facing_intervals(t: np.ndarray, chainage: np.ndarray, handover: list[Handov
     return [(h.station, float(t[a]), float(t[b])) for h, a, b in zip(handover, edges[:-1], edges[1:])]
 
 
-def _station_epochs(intervals: list[tuple[float, float]], rate_hz: float, offset_s: float,
-                    drift_ppm: float) -> np.ndarray:
-    """IMU times (K,) of a station's samples: the regular grid k / rate_hz (k >= 0) of its own clock
-    inside the given IMU-clock intervals (merged where they touch or overlap); with a negative
-    offset the station's first readings of the run are missing (its clock is not yet at 0)."""
-    out = [np.zeros(0)]
+def station_epochs(intervals: list[tuple[float, float]], rate_hz: float, offset_s: float,
+                   drift_ppm: float) -> tuple[np.ndarray, np.ndarray]:
+    """(IMU times (K,), station times (K,)) [s] of a station's samples: the regular grid
+    k / rate_hz (k >= 0) of its own clock inside the given IMU-clock intervals (merged where they
+    touch or overlap). The station times are that grid itself, never the IMU times plus the offset
+    (whose rounding made a clock at 0 read -1e-16 s): a station clock never reads a negative time,
+    whatever its offset; with a negative offset the station's first readings of the run are
+    missing (its clock is not yet at 0)."""
+    t_imu, t_station = [np.zeros(0)], [np.zeros(0)]
     for a, b in _merge(intervals):
         st_a, st_b = (np.array([a, b]) * (1.0 + drift_ppm * 1e-6) + offset_s) * rate_hz
         k = np.arange(max(np.ceil(st_a), 0.0), np.floor(st_b) + 1)  # a station clock starts at 0
         t = (k / rate_hz - offset_s) / (1.0 + drift_ppm * 1e-6)
-        out.append(t[(t >= a) & (t <= b)])  # guard against rounding at the ends
-    return np.concatenate(out)
+        inside = (t >= a) & (t <= b)  # guard against rounding at the ends
+        t_imu.append(t[inside])
+        t_station.append(k[inside] / rate_hz)
+    return np.concatenate(t_imu), np.concatenate(t_station)
 
 
 def _merge(intervals: list[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -396,7 +401,7 @@ def _merge(intervals: list[tuple[float, float]]) -> list[tuple[float, float]]:
     return [(a, b) for a, b in merged]
 
 
-def _tracking_intervals(facing: list[tuple[str, float, float]], station_id: str, spec: TotalStationSpec,
+def tracking_intervals(facing: list[tuple[str, float, float]], station_id: str, spec: TotalStationSpec,
                         t_end_s: float) -> list[tuple[float, float]]:
     """IMU-time intervals tracked by one station: its facing intervals, less ``handover_gap_s`` at a
     hand-over start (not at the run start), plus ``handover_overlap_s`` after a hand-over away."""
@@ -419,7 +424,7 @@ def _prism_callable(t_truth: np.ndarray, prism_pos_n: PrismTruth) -> Callable[[n
     return CubicSpline(t_truth, pos, axis=0)
 
 
-def _draw_station_errors(st: StationConfig, spec: TotalStationSpec, rng: np.random.Generator,
+def draw_station_errors(st: StationConfig, spec: TotalStationSpec, rng: np.random.Generator,
                          ideal: bool) -> tuple[np.ndarray, float, float, float]:
     """(tilt (2,) [arcsec], orientation error [arcsec], clock offset [s], clock drift [ppm]); fixed
     values of the config win over draws; all zero when ideal. Draws happen in a fixed order."""
@@ -461,23 +466,24 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
     t_truth = _times(t_truth_s, "total_stations")
     chainage = _series(chainage_m, t_truth.size, "total_stations", "chainage_m")
     prism_at = _prism_callable(t_truth, prism_pos_n)
-    facing = _facing_intervals(t_truth, chainage, spec.handover)
+    facing = facing_intervals(t_truth, chainage, spec.handover)
     data: dict[str, TotalStationData] = {}
     drawn: dict[str, dict] = {}
     for st in spec.stations:
-        tilt, orient_err, offset, drift = _draw_station_errors(st, spec, rng, ideal)
+        tilt, orient_err, offset, drift = draw_station_errors(st, spec, rng, ideal)
         setup = true_station_setup(st, tilt, orient_err)
-        tracked = _tracking_intervals(facing, st.id, spec, float(t_truth[-1]))
-        t_imu = _station_epochs(tracked, spec.rate_hz, offset, drift)
-        t_imu = t_imu[~_in_intervals(t_imu, st.blocked)]
+        tracked = tracking_intervals(facing, st.id, spec, float(t_truth[-1]))
+        t_imu, t_station = station_epochs(tracked, spec.rate_hz, offset, drift)
+        seen = ~_in_intervals(t_imu, st.blocked)
+        t_imu, t_station = t_imu[seen], t_station[seen]
         prism = np.asarray(prism_at(t_imu), dtype=float).reshape(-1, 3) if t_imu.size else np.zeros((0, 3))
         for ml in st.mislocks:
             prism[_in_intervals(t_imu, [ml])] = ml.target_n_m
         hz, zen, dist = n_to_polar(prism, setup, origin, spec.refraction_k)
         ok = (dist >= spec.min_range_m) & (dist <= spec.max_range_m)
-        t_imu, hz, zen, dist = t_imu[ok], hz[ok], zen[ok], dist[ok]
+        t_imu, t_station, hz, zen, dist = t_imu[ok], t_station[ok], hz[ok], zen[ok], dist[ok]
         e_hz, e_zen, e_dist = _polar_noise(dist, spec, rng, ideal)
-        data[st.id] = TotalStationData(st.id, t_imu + offset + drift * 1e-6 * t_imu,
+        data[st.id] = TotalStationData(st.id, t_station,
                                        np.mod(hz + e_hz, 2 * np.pi), zen + e_zen, dist + e_dist,
                                        np.full(t_imu.size, spec.prism_id, dtype=object))
         drawn[st.id] = {

@@ -6,6 +6,8 @@ Topics (JSON encoding, Foxglove schema names; frame ``n`` is ENU at the survey o
   orientation ``R_nb`` as a quaternion, at most ``max_rate_hz``;
 - ``/trajectory/fix`` ``foxglove.LocationFix``: WGS-84 latitude, longitude, ellipsoidal height
   and the diagonal ENU position covariance (type 2, diagonal known), same times (Map panel);
+- ``/trajectory/tf`` ``foxglove.FrameTransform``: ``n`` -> ``b`` (translation: the IMU origin in ``n``;
+  rotation: ``R_nb``), same times, so that the 3-D panel can follow the trolley (display frame ``b``);
 - ``/trajectory/path`` ``foxglove.SceneUpdate``: the whole trajectory as one line (3-D panel);
 - with geometry (``geometry.csv`` columns): ``/track/rails`` ``foxglove.SceneUpdate`` with the
   left (red) and right (blue) rail as lines in ``n``, and ``/track/rails_geojson``
@@ -13,6 +15,10 @@ Topics (JSON encoding, Foxglove schema names; frame ``n`` is ENU at the survey o
 - the raw log's topics (``/imu``, ``/odometer``, ``/gnss``, ``/total_station/<id>``, ...) copied
   with their schemas and ``log_time`` (docs/log_format.md), and its metadata.
 
+Times: the survey's absolute clock (:func:`survey_epoch_ns`: the log's ``survey.epoch_utc``
+plus the IMU clock), so that Foxglove shows the date and time of the survey; a log that does not
+give its epoch stays on the IMU clock (times from 1970-01-01). The CSV outputs keep the IMU clock.
+One schema record per name (the raw ``/gnss`` and ``/trajectory/fix`` share ``foxglove.LocationFix``).
 The scene and GeoJSON messages are stamped at the trajectory's first time and never expire.
 Written atomically and deterministically (no wall-clock time in the file).
 """
@@ -25,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import geodesy
+from . import schemas
 from .mcap_log import ExtraChannel, copy_log, write_log
 from .types import SensorLog
 
@@ -45,18 +52,12 @@ POSE_IN_FRAME_SCHEMA = {
     "title": "foxglove.PoseInFrame", "description": "A timestamped pose for an object or reference frame in 3D space",
     "type": "object", "properties": {"timestamp": _TIME, "frame_id": {"type": "string"}, "pose": _POSE},
     "required": ["timestamp", "frame_id", "pose"]}
-LOCATION_FIX_SCHEMA = {
-    "title": "foxglove.LocationFix", "description": "A navigation satellite fix for any Global Navigation Satellite System",
+FRAME_TRANSFORM_SCHEMA = {
+    "title": "foxglove.FrameTransform", "description": "A transform between two reference frames in 3D space",
     "type": "object", "properties": {
-        "timestamp": _TIME, "frame_id": {"type": "string"},
-        "latitude": {"type": "number"}, "longitude": {"type": "number"}, "altitude": {"type": "number"},
-        "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
-        "position_covariance_type": {"title": "foxglove.PositionCovarianceType",
-                                     "oneOf": [{"title": t, "const": i} for i, t in
-                                               enumerate(("UNKNOWN", "APPROXIMATED", "DIAGONAL_KNOWN", "KNOWN"))]},
-        "color": _COLOR},
-    "required": ["timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance",
-                 "position_covariance_type"]}
+        "timestamp": _TIME, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+        "translation": {"title": "foxglove.Vector3", **_XYZ}, "rotation": {"title": "foxglove.Quaternion", **_QUAT}},
+    "required": ["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"]}
 _LINE = {"title": "foxglove.LinePrimitive", "type": "object", "properties": {
     "type": {"title": "foxglove.LineType", "oneOf": [{"title": t, "const": i} for i, t in
                                                      enumerate(("LINE_STRIP", "LINE_LOOP", "LINE_LIST"))]},
@@ -133,22 +134,25 @@ def _scene(ns: int, entity_id: str, lines: list[dict], meta: dict[str, str]) -> 
 #: its JSON text): the same bytes, formatted without building dicts
 _POSE_TEMPLATE = ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"n","pose":{"position":{"x":%r,"y":%r,"z":%r},'
                   '"orientation":{"x":%r,"y":%r,"z":%r,"w":%r}}}')
+_TF_TEMPLATE = ('{"timestamp":{"sec":%d,"nsec":%d},"parent_frame_id":"n","child_frame_id":"b",'
+                '"translation":{"x":%r,"y":%r,"z":%r},"rotation":{"x":%r,"y":%r,"z":%r,"w":%r}}')
 _FIX_TEMPLATE = ('{"timestamp":{"sec":%d,"nsec":%d},"frame_id":"n","latitude":%r,"longitude":%r,"altitude":%r,'
                  '"position_covariance":[%r,0.0,0.0,0.0,%r,0.0,0.0,0.0,%r],"position_covariance_type":2}')
 
 
 def _pose_and_fix_payloads(ns: np.ndarray, pos: np.ndarray, q_xyzw: np.ndarray, var_enu: np.ndarray,
-                           llh: np.ndarray) -> tuple[list[str], list[str]]:
-    """PoseInFrame and LocationFix payloads at times ``ns`` (N,) [ns]: positions ``pos`` (N, 3) [m] in
+                           llh: np.ndarray) -> tuple[list[str], list[str], list[str]]:
+    """PoseInFrame, LocationFix and FrameTransform (n -> b) payloads at times ``ns`` (N,) [ns]: positions ``pos`` (N, 3) [m] in
     ``n``, quaternions ``q_xyzw`` (N, 4), ENU variances ``var_enu`` (N, 3) [m^2], latitude,
     longitude [deg] and height [m] ``llh`` (N, 3). Raises ValueError for non-finite values (as
     ``_dumps``)."""
     if not all(np.isfinite(a).all() for a in (pos, q_xyzw, var_enu, llh)):
         raise ValueError("Out of range float values are not JSON compliant")
     sec, nsec = (ns // 1_000_000_000).tolist(), (ns % 1_000_000_000).tolist()
-    poses = list(map(_POSE_TEMPLATE.__mod__, zip(sec, nsec, *_float_columns(pos), *_float_columns(q_xyzw))))
+    pos_q = list(zip(sec, nsec, *_float_columns(pos), *_float_columns(q_xyzw)))
+    poses = list(map(_POSE_TEMPLATE.__mod__, pos_q))
     fixes = list(map(_FIX_TEMPLATE.__mod__, zip(sec, nsec, *_float_columns(llh), *_float_columns(var_enu))))
-    return poses, fixes
+    return poses, fixes, list(map(_TF_TEMPLATE.__mod__, pos_q))
 
 
 def _float_columns(a: np.ndarray) -> list[list[float]]:
@@ -156,23 +160,25 @@ def _float_columns(a: np.ndarray) -> list[list[float]]:
     return [a[:, j].astype(np.float64).tolist() for j in range(a.shape[1])]
 
 
-def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = 10.0
-                        ) -> list[ExtraChannel]:
-    """Pose, fix and path channels of a trajectory table (trajectory.csv columns)."""
+def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = 10.0,
+                        epoch_ns: int = 0) -> list[ExtraChannel]:
+    """Pose, fix, transform and path channels of a trajectory table (trajectory.csv columns), at
+    log times ``epoch_ns`` + t_s (the survey's absolute clock, :func:`survey_epoch_ns`)."""
     t = table["t_s"]
     step = max(1, int(round(1.0 / (max_rate_hz * np.median(np.diff(t)))))) if t.size > 1 else 1
     sel = np.arange(0, t.size, step)
-    ns = np.rint(t[sel] * 1e9).astype(np.int64)
+    ns = np.rint(t[sel] * 1e9).astype(np.int64) + int(epoch_ns)
     pos = np.column_stack([table["e_m"], table["n_m"], table["u_m"]])[sel]
     q = np.column_stack([table[c] for c in ("qx", "qy", "qz", "qw")])[sel]
     var = np.column_stack([table[f"sigma_{a}_m"] for a in "enu"])[sel] ** 2
     lat, lon, h = geodesy.n_to_geodetic(pos, origin)
-    poses, fixes = _pose_and_fix_payloads(ns, pos, q, var, np.column_stack([lat, lon, h]))
+    poses, fixes, transforms = _pose_and_fix_payloads(ns, pos, q, var, np.column_stack([lat, lon, h]))
     t0 = ns[:1]
     path = _scene(int(ns[0]), "trajectory", [_line(np.column_stack([table["e_m"], table["n_m"], table["u_m"]]),
                                                    PATH_RGBA, 2.0)], {"what": "smoothed IMU origin path"})
     return [ExtraChannel("/trajectory/pose", "foxglove.PoseInFrame", _schema(POSE_IN_FRAME_SCHEMA), ns, poses),
-            ExtraChannel("/trajectory/fix", "foxglove.LocationFix", _schema(LOCATION_FIX_SCHEMA), ns, fixes),
+            ExtraChannel("/trajectory/fix", schemas.LOCATION_FIX, schemas.schema_bytes(schemas.LOCATION_FIX), ns, fixes),
+            ExtraChannel("/trajectory/tf", "foxglove.FrameTransform", _schema(FRAME_TRANSFORM_SCHEMA), ns, transforms),
             ExtraChannel("/trajectory/path", "foxglove.SceneUpdate", _schema(SCENE_UPDATE_SCHEMA), t0, [path])]
 
 
@@ -209,10 +215,36 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
     file's records are copied byte for byte (:func:`~trackfusion.sensors.mcap_log.copy_log`: no
     re-encoding, no recompression); otherwise (e.g. the readable part of a damaged log) the raw
     topics are written from the arrays of ``raw``."""
-    extra = trajectory_channels(table, origin, max_rate_hz)
+    epoch_ns = survey_epoch_ns(raw.metadata) if raw is not None else 0
+    extra = trajectory_channels(table, origin, max_rate_hz, epoch_ns)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
     if raw is not None and raw.source is not None and raw.source.unchanged():
-        copy_log(path, raw.source, extra)
+        copy_log(path, raw.source, extra, time_offset_ns=epoch_ns)
     else:
-        write_log(path, raw if raw is not None else SensorLog(), extra)
+        write_log(path, raw if raw is not None else SensorLog(), extra, time_offset_ns=epoch_ns)
+
+
+def survey_epoch_ns(metadata: dict, source: str = "log") -> int:
+    """The survey's epoch [ns since 1970-01-01 UTC]: the UTC time at which the IMU clock reads 0,
+    from the log's ``survey`` metadata record, key ``epoch_utc`` (ISO 8601, e.g.
+    ``2024-05-14T07:30:00Z``; docs/log_format.md); 0 (times stay on the IMU clock) when the log
+    does not say. Raises :class:`~trackfusion.errors.SensorDataError` naming ``source`` (the log
+    file) for an unreadable value."""
+    from datetime import datetime, timezone
+    from ..errors import SensorDataError
+    survey = metadata.get("survey") if isinstance(metadata, dict) else None
+    text = survey.get("epoch_utc") if isinstance(survey, dict) else None
+    if text is None:
+        return 0
+    try:
+        when = datetime.fromisoformat(str(text).replace("Z", "+00:00"))
+    except ValueError:
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} is not an ISO 8601 time") from None
+    if when.tzinfo is None:
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} has no time zone (write it in UTC, ...Z)")
+    delta = when.astimezone(timezone.utc) - datetime(1970, 1, 1, tzinfo=timezone.utc)
+    ns = (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+    if not 0 <= ns < 9 * 10**18:
+        raise SensorDataError(f"{source}: metadata survey.epoch_utc: {text!r} is outside 1970..2255")
+    return ns

@@ -26,6 +26,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import ConfigError, SensorDataError, config_error_from_validation
+from ..yamlio import load_yaml
 from .fileio import read_json, write_json_atomic, write_text_atomic
 from .imu_axes import axes_matrix, check_imu_frame, rates_from_increments, to_body
 from .mcap_log import read_log, write_log
@@ -373,10 +374,7 @@ def load_mapping(path: str | Path) -> tuple[ImportMapping, Path]:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{p}: mapping file not found")
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = load_yaml(p, "mapping file")
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: a mapping must be a mapping of sensor sections")
     try:
@@ -393,6 +391,8 @@ def import_log(mapping_path: str | Path) -> SensorLog:
         log.metadata = read_json(base / m.metadata)
     if m.survey is not None:
         log.metadata["survey"] = {**log.metadata.get("survey", {}), **m.survey}
+    from .fused import survey_epoch_ns
+    survey_epoch_ns(log.metadata, str(mapping_path))  # a bad survey.epoch_utc refused here, not at a run's end
     if m.imu is not None:
         log.imu = _imu(base, m.imu)
     if m.odometer is not None:
@@ -410,10 +410,16 @@ def import_log(mapping_path: str | Path) -> SensorLog:
     return log
 
 
-def import_to_mcap(mapping_path: str | Path, out_path: str | Path) -> SensorLog:
-    """Import the files of a mapping YAML and write them as an MCAP raw log at ``out_path``."""
+def import_to_mcap(mapping_path: str | Path, out_path: str | Path, force: bool = False) -> SensorLog:
+    """Import the files of a mapping YAML and write them as an MCAP raw log at ``out_path``
+    (checked first, :class:`~trackfusion.outdir.OutputFile`: an existing file trackfusion did not
+    write is replaced only with ``force``)."""
+    from ..outdir import OutputFile
+    target = OutputFile(out_path, force, inputs=[mapping_path], command="trackfusion import")
+    target.check()
     log = import_log(mapping_path)
-    write_log(out_path, log)
+    with target.writing() as path:
+        write_log(path, log)
     return log
 
 
@@ -433,12 +439,20 @@ def _write_csv(path: Path, names: list[str], columns: list[np.ndarray], text: np
     write_text_atomic(path, "\n".join(lines) + "\n")
 
 
-def export_csv(log_path: str | Path, out_dir: str | Path) -> list[str]:
+def export_csv(log_path: str | Path, out_dir: str | Path, force: bool = False) -> list[str]:
     """Write each sensor of a raw log as CSV (SI units, ``t_s`` in seconds), its metadata as
-    ``metadata.json`` and an ``import.yaml`` mapping them; returns the file names."""
-    log = read_log(log_path)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ``metadata.json`` and an ``import.yaml`` mapping them into the folder ``out_dir`` (checked,
+    locked, staged and renamed: :class:`~trackfusion.outdir.OutputFolder`); returns the file names."""
+    from ..outdir import OutputFolder
+    folder = OutputFolder(out_dir, force, inputs=[log_path], command="trackfusion export")
+    with folder.locked():
+        log = read_log(log_path)
+        with folder.staging() as stage:
+            _export_log(log, log_path, stage)
+            return sorted(p.name for p in stage.iterdir())
+
+
+def _export_log(log: SensorLog, log_path: str | Path, out: Path) -> None:
     mapping: dict[str, Any] = {"metadata": "metadata.json"}
     xyz = lambda p: [f"{p}_{a}" for a in "xyz"]  # noqa: E731
     if log.imu is not None:
@@ -482,4 +496,3 @@ def export_csv(log_path: str | Path, out_dir: str | Path) -> list[str]:
     write_json_atomic(out / "metadata.json", log.metadata)
     write_text_atomic(out / "import.yaml", f"# written by 'trackfusion export {log_path}' (docs/import.md)\n"
                       + yaml.safe_dump(mapping, sort_keys=False))
-    return sorted(p.name for p in out.iterdir() if p.suffix in (".csv", ".json", ".yaml"))

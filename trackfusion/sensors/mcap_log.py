@@ -188,14 +188,16 @@ def _msgdef(msgtype: str) -> bytes:
     return _MSGDEFS[msgtype]
 
 
-def _cdr_stream(topic: str, msgtype: str, frame_id: str, ns: np.ndarray, values: dict[str, Any]) -> _Stream:
-    """A channel of CDR messages: every record of one layout, header.stamp = log_time."""
+def _cdr_stream(topic: str, msgtype: str, frame_id: str, ns: np.ndarray, values: dict[str, Any],
+                offset_ns: int = 0) -> _Stream:
+    """A channel of CDR messages: every record of one layout, header.stamp = log_time (``ns``);
+    ``offset_ns`` moves the log_time only (``fused.mcap`` on the absolute clock, payloads as in the log)."""
     values = {**values, "stamp.sec": ns // 10**9, "stamp.nanosec": ns % 10**9}
     records = cdr.encode(msgtype, frame_id, values, ns.size)
     size = records.dtype.itemsize
     text = records.tobytes().decode("latin-1")
-    return _Stream(topic, msgtype, ns, [text[i:i + size] for i in range(0, len(text), size)], _msgdef(msgtype),
-                   encoding="cdr", schema_encoding="ros2msg")
+    return _Stream(topic, msgtype, ns + offset_ns, [text[i:i + size] for i in range(0, len(text), size)],
+                   _msgdef(msgtype), encoding="cdr", schema_encoding="ros2msg")
 
 
 def _format(schema: str, columns: list[list]) -> list[str]:
@@ -203,13 +205,15 @@ def _format(schema: str, columns: list[list]) -> list[str]:
     return list(map(schemas.CANONICAL[schema].template.__mod__, zip(*columns)))
 
 
-def _streams(log: SensorLog, encoding: str = "ros2") -> list[_Stream]:
+def _streams(log: SensorLog, encoding: str = "ros2", offset_ns: int = 0) -> list[_Stream]:
     """Every sensor present, in channel order, checked and formatted (``encoding`` "json": the
-    IMU and odometer too as JSON, the format of logs before CDR)."""
+    IMU and odometer too as JSON, the format of logs before CDR); ``offset_ns`` is added to every
+    log_time (``fused.mcap`` on the survey's absolute clock; the payloads stay as in the log, as
+    :func:`copy_log` keeps them)."""
     out: list[_Stream] = []
     if log.imu is not None and encoding == "json":
         d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
         out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
     elif log.imu is not None:
@@ -218,10 +222,10 @@ def _streams(log: SensorLog, encoding: str = "ros2") -> list[_Stream]:
         values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
                   "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
                   "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
-        out.append(_cdr_stream(topic, CDR_IMU, "imu", ns, values))
+        out.append(_cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns))
     if log.odometer is not None and encoding == "json":
         d, topic = log.odometer, "/odometer"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
         if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
             raise _fail(topic, "ticks must be integers")
@@ -234,12 +238,13 @@ def _streams(log: SensorLog, encoding: str = "ros2") -> list[_Stream]:
             raise _fail(topic, "ticks must be integers")
         values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
                   "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
-        out.append(_cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values))
+        out.append(_cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns))
     if log.gnss is not None:
         d, topic = log.gnss, "/gnss"
-        ns = _log_time_ns(topic, d.t_s)
+        own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
+        ns = own + offset_ns
         n = ns.size
-        cols = [(ns // 10**9).tolist(), (ns % 10**9).tolist()] + _columns(topic, n, [
+        cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
             ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
             ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
         out.append(_Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols)))
@@ -248,7 +253,7 @@ def _streams(log: SensorLog, encoding: str = "ros2") -> list[_Stream]:
         topic = schemas.TOTAL_STATION_PREFIX + sid
         if not sid or "/" in sid:
             raise _fail(topic, "station id must be a non-empty name without '/'")
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
                                          ("zenith_angle_rad", d.zenith_angle_rad, ()),
                                          ("slope_distance_m", d.slope_distance_m, ())])
@@ -259,12 +264,12 @@ def _streams(log: SensorLog, encoding: str = "ros2") -> list[_Stream]:
         out.append(_Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols)))
     if log.inclinometer is not None:
         d, topic = log.inclinometer, "/inclinometer"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())])
         out.append(_Stream(topic, schemas.INCLINATION, ns, _format(schemas.INCLINATION, cols)))
     if log.gauge is not None:
         d, topic = log.gauge, "/gauge"
-        ns = _log_time_ns(topic, d.t_s)
+        ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("gauge_m", d.gauge_m, ())])
         out.append(_Stream(topic, schemas.GAUGE, ns, _format(schemas.GAUGE, cols)))
     return out
@@ -414,10 +419,12 @@ class RawSource:
         return (st.st_size, st.st_mtime_ns) == (self.size, self.mtime_ns)
 
 
-def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
+def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
+                    ) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
     """Copy the source's metadata, chunk and message index records unchanged (chunks stay
     compressed; message indexes are relative to their chunk, so they stay valid); returns the
-    metadata and chunk indexes of the copies."""
+    metadata and chunk indexes of the copies. With ``offset_ns``, every message's log and
+    publish time moves by it (:func:`_shifted_chunk`, :func:`_shifted_message_index`)."""
     metadata_indexes: list[MetadataIndex] = []
     chunk_indexes: list[ChunkIndex] = []
     last_op = None
@@ -431,6 +438,8 @@ def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex
                 name = _Cursor(rec[9:], start + 9).text()
                 metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
             elif op == _CHUNK:
+                if offset_ns:
+                    rec = _shifted_chunk(rec, offset_ns, start)
                 t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
                 n = struct.unpack_from("<I", rec, 37)[0]
                 compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
@@ -439,11 +448,59 @@ def _copied_records(out: _Output, source: RawSource) -> tuple[list[MetadataIndex
                     chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
                     compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
             elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
+                if offset_ns:
+                    rec = _shifted_message_index(rec, offset_ns)
                 index = chunk_indexes[-1]  # message indexes follow their chunk
                 index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
                 index.message_index_length += len(rec)
             last_op = op if op != _METADATA else last_op
     return metadata_indexes, chunk_indexes
+
+
+def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
+    """A chunk record with every message's log_time and publish_time moved by ``offset_ns``
+    (both are times on one clock, the MCAP specification's publish time of 0 included): inflated,
+    the message headers patched, compressed
+    again with the chunk's own compression (its payloads, and any schema and channel records in
+    it, stay byte for byte); start and end time and CRC follow."""
+    t0, t1, size, crc = struct.unpack_from("<QQQI", rec, 9)
+    n = struct.unpack_from("<I", rec, 37)[0]
+    compression = rec[41:41 + n].decode("utf-8")
+    clen = struct.unpack_from("<Q", rec, 41 + n)[0]
+    data = bytearray(_inflate(compression, rec[49 + n:49 + n + clen], size, at, complete=True))
+    offsets = _message_offsets(bytes(data))  # every record a message (what trackfusion writes): at once
+    if offsets is None:
+        offsets, pos = [], 0
+        while pos + 9 <= len(data):  # any writer's records, in order
+            op, length = struct.unpack_from("<BQ", data, pos)
+            if op == _MESSAGE:
+                offsets.append(pos)
+            pos += 9 + length
+        offsets = np.asarray(offsets, np.int64)
+    raw = np.frombuffer(data, np.uint8)
+    at_times = (offsets + 15)[:, None] + np.arange(16)  # log_time and publish_time of each message
+    times = raw[at_times].copy().view("<u8")  # (M, 2): log_time, publish_time
+    times += np.uint64(offset_ns)
+    raw[at_times] = times.view(np.uint8).reshape(-1, 16)
+    raw = bytes(data)
+    if compression == "zstd":
+        comp = _compress(raw)
+    elif compression == "lz4":
+        import lz4.frame
+        comp = lz4.frame.compress(raw)
+    else:
+        comp = raw
+    body = struct.pack("<QQQI", t0 + offset_ns if size else t0, t1 + offset_ns if size else t1, size,
+                       zlib.crc32(raw) if crc else 0) + struct.pack("<I", n) + rec[41:41 + n] + struct.pack(
+        "<Q", len(comp))
+    return _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp)) + body + comp
+
+
+def _shifted_message_index(rec: bytes, offset_ns: int) -> bytes:
+    """A message index record with its log times moved by ``offset_ns`` (offsets unchanged)."""
+    pairs = np.frombuffer(rec, dtype="<u8", offset=15).reshape(-1, 2).copy()
+    pairs[:, 0] += np.uint64(offset_ns)
+    return rec[:15] + pairs.tobytes()
 
 
 def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
@@ -474,7 +531,7 @@ def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
 
 
 def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]],
-                source: RawSource | None = None) -> None:
+                source: RawSource | None = None, source_offset_ns: int = 0) -> None:
     """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer.
     With ``source``, its schemas and channels (same ids) and records come first, copied unchanged;
     ``streams`` then take the next ids."""
@@ -487,18 +544,21 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
                     for i, (sid, t, e, m) in sorted((source.channels if source else {}).items())]
     next_schema = max((r.id for r in schema_recs), default=0) + 1
     first_channel = max((r.id for r in channel_recs), default=0) + 1
-    schema_ids: dict[tuple[str, bytes], int] = {}
+    # one schema record per name: a stream whose schema name the file has already (the source's, or
+    # an earlier stream's) uses that record, so that a viewer never meets two schemas of one name
+    schema_ids: dict[str, int] = {r.name: r.id for r in schema_recs}
     for i, s in enumerate(streams):
-        data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
-        if (s.schema, data) not in schema_ids:
-            schema_ids[(s.schema, data)] = next_schema + len(schema_ids)
-            schema_recs.append(Schema(id=schema_ids[(s.schema, data)], name=s.schema, encoding=s.schema_encoding,
+        if s.schema not in schema_ids:
+            data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
+            schema_ids[s.schema] = next_schema
+            next_schema += 1
+            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding,
                                       data=data))
-        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[(s.schema, data)], topic=s.topic,
+        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
                                     message_encoding=s.encoding, metadata={}))
     for rec in schema_recs + channel_recs:
         out.put(_record(rec))
-    metadata_indexes, chunk_indexes = _copied_records(out, source) if source else ([], [])
+    metadata_indexes, chunk_indexes = _copied_records(out, source, source_offset_ns) if source else ([], [])
     for name, data in metadata:
         rec = _record(Metadata(name=name, metadata=data))
         metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
@@ -534,7 +594,8 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
     out.put(MAGIC, in_crc=False)
 
 
-def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = (), encoding: str = "ros2") -> None:
+def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = (), encoding: str = "ros2",
+              time_offset_ns: int = 0) -> None:
     """Write ``log`` to ``path`` as an MCAP raw log (docs/log_format.md).
 
     Every sensor present (not None; total stations by id) becomes one channel; messages of
@@ -547,11 +608,13 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     ``extra`` channels follow the sensors' (a file with them is no longer a raw log that
     :func:`read_log` accepts; ``fused.mcap`` is written this way). ``encoding``: "ros2" writes
     ``/imu`` as ``sensor_msgs/msg/Imu`` and ``/odometer`` as ``trackfusion_msgs/msg/OdometerDistance``
-    (CDR), "json" every topic as JSON (the older format, still read).
+    (CDR), "json" every topic as JSON (the older format, still read). ``time_offset_ns`` [ns] is
+    added to the sensors' log_time (``fused.mcap`` on the survey's absolute clock; the extra
+    channels carry their own times).
     """
     if encoding not in ("ros2", "json"):
         raise ValueError(f"encoding must be 'ros2' or 'json', got {encoding!r}")
-    streams = _streams(log, encoding) + _extra_streams(extra)
+    streams = _streams(log, encoding, int(time_offset_ns)) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_mcap(fh, streams, metadata)
@@ -562,16 +625,18 @@ def _extra_streams(extra: Iterable[ExtraChannel]) -> list[_Stream]:
             for c in extra]
 
 
-def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = ()) -> None:
+def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] = (), time_offset_ns: int = 0) -> None:
     """Write to ``path`` the raw log file ``source`` (a ``SensorLog.source`` from :func:`read_log`)
     with its schemas, channels (same ids), metadata and chunks copied byte for byte (no decoding,
     no recompression), then the ``extra`` channels (next ids) in chunks of their own; summary
     as :func:`write_log`. Atomic and byte-identical for identical input. Raises
-    :class:`SensorDataError` when the file changed since it was read."""
+    :class:`SensorDataError` when the file changed since it was read. ``time_offset_ns`` [ns]
+    moves the copied messages' log and publish times (``fused.mcap`` on the survey's absolute
+    clock): their chunks are inflated, patched and compressed again, payloads untouched."""
     if not source.unchanged():
         raise SensorDataError(f"{source.path}: changed since it was read; read it again")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _write_mcap(fh, _extra_streams(extra), [], source)
+        _write_mcap(fh, _extra_streams(extra), [], source, int(time_offset_ns))
 
 
 # =================================================================================================
@@ -1168,7 +1233,7 @@ def _scan_into(scan: _Scan, path: Path, allow_truncated: bool) -> None:
     if scan.problem is not None and not allow_truncated:
         where = f" at byte {scan.problem.at}" if scan.problem.at >= 0 else ""
         raise SensorDataError(f"{path}: truncated or corrupt MCAP{where} ({scan.problem.reason}); "
-                              f"{scan.readable()} before it; read_log(..., allow_truncated=True) returns them")
+                              f"{scan.readable()} before it; set inputs.allow_truncated: true in the pipeline YAML to run on them")
 
 
 # =================================================================================================

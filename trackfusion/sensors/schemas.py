@@ -79,8 +79,10 @@ SCHEMAS: dict[str, dict] = {
          "position_covariance_type": {"type": "integer", "minimum": 0, "maximum": 3,
                                       "description": "0 unknown, 1 approximated, 2 diagonal known, 3 known"},
          "fix_quality": {"type": "integer",
-                         "description": "NMEA GGA quality: 0 invalid, 1 single, 2 DGNSS, 4 RTK fixed, 5 RTK float"}},
-        ["latitude", "longitude", "altitude", "position_covariance", "fix_quality"]),
+                         "description": "NMEA GGA quality: 0 invalid, 1 single, 2 DGNSS, 4 RTK fixed, 5 RTK float; "
+                                        "required on the /gnss topic of a raw log (the reader checks it)"}},
+        # (fix_quality not required here: fused.mcap's /trajectory/fix shares this one LocationFix schema)
+        ["latitude", "longitude", "altitude", "position_covariance"]),
     POLAR: _schema(
         POLAR, "Robotic total-station reading of a prism; MCAP log_time is on the station's own clock.",
         {"horizontal_angle_rad": _num("horizontal direction, clockwise from the instrument's zero direction [rad]"),

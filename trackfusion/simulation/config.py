@@ -98,6 +98,16 @@ def available_scenarios() -> list[str]:
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 
 
+def scenario_descriptions() -> dict[str, str]:
+    """Built-in scenario name -> its one-line ``description`` (``trackfusion simulate --list``)."""
+    from ..yamlio import load_yaml
+    out = {}
+    for name in available_scenarios():
+        data = load_yaml(SCENARIO_DIR / f"{name}.yaml", "scenario file")
+        out[name] = str(data.get("description", "")) if isinstance(data, dict) else ""
+    return out
+
+
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
     """Apply ``key.sub=value`` overrides (value parsed as YAML) to a nested dict; returns a copy.
 
@@ -148,10 +158,8 @@ def load_scenario(name_or_path: str, overrides: list[str] | None = None) -> Scen
             raise ConfigError(f"unknown scenario {name_or_path!r} (built-in: {', '.join(available_scenarios())})")
     if not path.is_file():
         raise ConfigError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: invalid YAML ({exc})") from None
+    from ..yamlio import load_yaml
+    data = load_yaml(path, "scenario file")
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping at the top level")
     data = apply_overrides(data, overrides or [])

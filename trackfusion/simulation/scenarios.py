@@ -116,26 +116,10 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     cfg = config if isinstance(config, ScenarioConfig) else load_scenario(config, overrides)
     timings: dict[str, float] = {}
     tic = time.perf_counter()
-    rngs = _rngs(seed)
-    origin = geodesy.Origin(cfg.origin.lat_deg, cfg.origin.lon_deg, cfg.origin.h_m)
-
-    # validate everything before any work or output
-    spec = _imu_spec(cfg.imu)
-    aiding_specs = _aiding_specs(cfg)
-    design = DesignAlignment.from_dict(cfg.alignment)
-    irr_spec = IrregularitySpec.from_dict(cfg.irregularities)
-    motion = _motion_plan(cfg)
-    geometry = _trolley_geometry(cfg)
+    scene = _scene(cfg, seed, say)
+    spec, aiding_specs, motion, kin, track, origin, rngs = (scene.imu_spec, scene.aiding_specs, scene.motion,
+                                                            scene.kin, scene.track, scene.origin, scene.rngs)
     s_lo, s_hi = motion.chainage_range_m
-    reach = geometry.wheelbase_m
-    if s_lo - reach < 0 or s_hi + reach > design.length_m:
-        raise ConfigError(f"motion: chainage range [{s_lo}, {s_hi}] m needs the track to extend "
-                          f"{reach} m beyond it (alignment length {design.length_m} m)")
-
-    say(f"[{cfg.name}] building track and trolley motion")
-    irr = synthesize(irr_spec, design.length_m, rngs["irregularities"])
-    track = TrackModel(design, irr)
-    kin = TrolleyKinematics.build(track, geometry, origin, s_lo - reach / 2, s_hi + reach / 2)
     timings["track_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -172,6 +156,52 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     log.metadata = _log_metadata(cfg, spec, lever_arms, drawn)
     return Simulation(cfg, seed, ideal, origin, log, truth, geometry_truth, geometry_units, truth_info,
                       kin, motion, track, timings)
+
+
+@dataclass
+class _Scene:
+    """What a simulation draws before the IMU: sensor specs, motion, track and trolley kinematics."""
+
+    imu_spec: ImuSpec
+    aiding_specs: dict
+    motion: MotionProfile
+    kin: TrolleyKinematics
+    track: TrackModel
+    origin: geodesy.Origin
+    rngs: dict[str, np.random.Generator]
+
+
+def _scene(cfg: ScenarioConfig, seed: int, say: Callable[[str], None]) -> _Scene:
+    """Validate everything before any work or output, then build the track and the trolley's motion."""
+    rngs = _rngs(seed)
+    origin = geodesy.Origin(cfg.origin.lat_deg, cfg.origin.lon_deg, cfg.origin.h_m)
+    spec = _imu_spec(cfg.imu)
+    aiding_specs = _aiding_specs(cfg)
+    design = DesignAlignment.from_dict(cfg.alignment)
+    irr_spec = IrregularitySpec.from_dict(cfg.irregularities)
+    motion = _motion_plan(cfg)
+    geometry = _trolley_geometry(cfg)
+    s_lo, s_hi = motion.chainage_range_m
+    reach = geometry.wheelbase_m
+    if s_lo - reach < 0 or s_hi + reach > design.length_m:
+        raise ConfigError(f"motion: chainage range [{s_lo}, {s_hi}] m needs the track to extend "
+                          f"{reach} m beyond it (alignment length {design.length_m} m)")
+    say(f"[{cfg.name}] building track and trolley motion")
+    irr = synthesize(irr_spec, design.length_m, rngs["irregularities"])
+    track = TrackModel(design, irr)
+    kin = TrolleyKinematics.build(track, geometry, origin, s_lo - reach / 2, s_hi + reach / 2)
+    return _Scene(spec, aiding_specs, motion, kin, track, origin, rngs)
+
+
+def simulate_aiding(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False) -> SensorLog:
+    """The aiding sensors' records of a simulation (everything but the IMU), the same draws as
+    :func:`simulate` of the same seed: a fast check of their clocks and times."""
+    cfg = config if isinstance(config, ScenarioConfig) else load_scenario(config)
+    scene = _scene(cfg, seed, lambda _m: None)
+    log = SensorLog()
+    _simulate_aiding(scene.aiding_specs, scene.kin, scene.track, scene.motion, scene.origin, scene.rngs, ideal,
+                     log, {}, {})
+    return log
 
 
 def _truth_table(kin: TrolleyKinematics, motion: MotionProfile, rate_hz: float) -> dict[str, np.ndarray]:
@@ -283,11 +313,15 @@ def _simulate_aiding(specs: dict, kin: TrolleyKinematics, track: TrackModel, mot
                                                           rngs["gauge"], ideal)
 
 
+#: UTC time at which a simulated survey's IMU clock reads 0 (``survey.epoch_utc``: fused.mcap's absolute clock)
+SIMULATED_EPOCH_UTC = "2024-06-03T08:00:00Z"
+
+
 def _log_metadata(cfg: ScenarioConfig, spec: ImuSpec, lever_arms: dict, drawn: dict) -> dict[str, Any]:
     """Run metadata for the log: survey description, sensor specifications, lever arms, station set-ups."""
     meta: dict[str, Any] = {
         "survey": {"scenario": cfg.name, "description": cfg.description, "simulated": True,
-                   "origin": cfg.origin.model_dump()},
+                   "origin": cfg.origin.model_dump(), "epoch_utc": SIMULATED_EPOCH_UTC},
         "sensors": {"imu": spec.model_dump(), "odometer": cfg.odometer, "gnss": cfg.gnss,
                     "inclinometer": cfg.inclinometer, "gauge": cfg.gauge},
         "lever_arms": {"lever_arm_imu_v_m": list(cfg.trolley.lever_arm_imu_v_m),
@@ -377,17 +411,27 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
 
 def simulate_to_dir(scenario: str, out_dir: str | Path, seed: int = 0, ideal: bool = False,
                     overrides: list[str] | None = None,
-                    progress: Callable[[str], None] | None = None) -> SimulationReport:
-    """Simulate ``scenario`` and write its files into ``out_dir`` (each atomically)."""
+                    progress: Callable[[str], None] | None = None, force: bool = False) -> SimulationReport:
+    """Simulate ``scenario`` and write its files into ``out_dir``: checked and locked before the
+    simulation, staged and renamed (:class:`~trackfusion.outdir.OutputFolder`; ``force``: write
+    beside files trackfusion did not write)."""
+    from ..outdir import OutputFolder
+
+    folder = OutputFolder(out_dir, force, command=f"trackfusion simulate {scenario}")
+    with folder.locked():
+        say = progress or (lambda _msg: None)
+        sim = simulate(scenario, seed=seed, ideal=ideal, overrides=overrides, progress=say)
+        tic = time.perf_counter()
+        say(f"[{sim.config.name}] writing {folder.path}/")
+        with folder.staging() as stage:
+            _write_simulation(sim, stage, seed)
+    return _simulation_report(sim, folder.path, seed, ideal, time.perf_counter() - tic)
+
+
+def _write_simulation(sim: Simulation, out: Path, seed: int) -> None:
     from ..sensors.fileio import write_csv_table, write_text_atomic
     from ..sensors.mcap_log import write_log
 
-    say = progress or (lambda _msg: None)
-    sim = simulate(scenario, seed=seed, ideal=ideal, overrides=overrides, progress=say)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tic = time.perf_counter()
-    say(f"[{sim.config.name}] writing {out}/")
     origin = sim.origin.to_dict()
     write_log(out / "log.mcap", sim.log)
     write_csv_table(out / "truth.csv", sim.truth, TRUTH_COLUMNS, "n", origin, fmt="%.12g",
@@ -396,7 +440,10 @@ def simulate_to_dir(scenario: str, out_dir: str | Path, seed: int = 0, ideal: bo
                     extra={"description": "rail reference points (top of rail, running edge) and irregularities"})
     header = f"# trackfusion pipeline for the simulated survey {sim.config.name!r} (seed {seed})\n"
     write_text_atomic(out / "pipeline.yaml", header + yaml.safe_dump(pipeline_for(sim), sort_keys=False))
-    sim.timings_s["write_s"] = time.perf_counter() - tic
+
+
+def _simulation_report(sim: Simulation, out: Path, seed: int, ideal: bool, write_s: float) -> SimulationReport:
+    sim.timings_s["write_s"] = write_s
     counts = {"imu": sim.log.imu.t_s.size}
     for name in ("odometer", "gnss", "inclinometer", "gauge"):
         data = getattr(sim.log, name)

@@ -39,7 +39,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from ..errors import ConfigError, TrackGeometryError, config_error_from_validation
@@ -208,14 +207,9 @@ class DesignAlignment:
     @classmethod
     def from_yaml(cls, path: str | Path) -> "DesignAlignment":
         """Load an alignment YAML file."""
+        from ..yamlio import load_yaml
         p = Path(path)
-        try:
-            data = yaml.safe_load(p.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"{p}: file not found") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{p}: invalid YAML ({exc})") from None
-        return cls.from_dict(data, str(p))
+        return cls.from_dict(load_yaml(p), str(p))
 
     def _locate(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if np.any(~np.isfinite(s)) or np.any(s < -1e-9) or np.any(s > self.length_m + 1e-9):

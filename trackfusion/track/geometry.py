@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ..errors import ConfigError, EvaluationError, TrackGeometryError, config_error_from_validation
@@ -156,10 +155,11 @@ def load_tolerances(name_or_path: str, base_dir: Path | None = None) -> tuple[st
         known = sorted(q.name[:-5] for q in (resources.files("trackfusion") / "data" / "tolerances").iterdir()
                        if q.name.endswith(".yaml"))
         raise ConfigError(f"geometry.tolerances: {source} not found (package tables: {', '.join(known)})")
+    from ..yamlio import parse_yaml
+    data = parse_yaml(text, source)
     try:
-        data = yaml.safe_load(text)
         checks = [ToleranceCheck(**c) for c in data["checks"]]
-    except (yaml.YAMLError, KeyError, TypeError) as exc:
+    except (KeyError, TypeError) as exc:
         raise ConfigError(f"{source}: invalid tolerance table ({exc})") from None
     for c in checks:
         _check_tolerance(c, source)
@@ -198,6 +198,7 @@ class GeometryResult:
                                "edge) in n and the quantities derived from them (docs/geometry.md)",
                 "chainage": self.metrics["chainage"], "irregularity_reference": self.metrics["irregularity_reference"],
                 "gauge": self.metrics["gauge"], "passes": self.metrics["passes"],
+                "not_measured": self.metrics.get("not_measured", {}),
                 "sign_conventions": {"cross_level_mm": "left rail height minus right rail height",
                                      "vertical": "positive up", "lateral": "positive to the left of increasing chainage",
                                      "twist": "cross_level(s + B/2) - cross_level(s - B/2)"}}
@@ -273,6 +274,19 @@ def _mean_over_passes(tables: list[dict[str, np.ndarray]], step_m: float) -> dic
     out = {"chainage_m": step_m * np.arange(k0, k1 + 1), **out}
     covered = np.isfinite(out["left_e_m"])
     return {k: v[covered] for k, v in out.items()}
+
+
+#: why a column is not measured without a gauge sensor
+NO_GAUGE = ("no gauge sensor: the other rail's lateral position is the reference rail's plus the nominal gauge, "
+            "so its lateral irregularities and versines and the gauge would be copies, not measurements")
+
+
+def not_measured_without_gauge(table: dict[str, np.ndarray], other_rail: str) -> dict[str, str]:
+    """The columns of a geometry table a survey without a gauge sensor does not measure, with why:
+    the gauge and its variation, and every lateral quantity of the rail opposite the reference
+    rail (``other_rail``). Its vertical quantities are measured (the trolley's cross-level)."""
+    return {c: NO_GAUGE for c in table
+            if c in ("gauge_m", "gauge_variation_mm") or c.startswith(f"{other_rail}_lateral")}
 
 
 def limit_exceedances(table: dict[str, np.ndarray], check: ToleranceCheck, step_m: float) -> list[dict]:
@@ -367,6 +381,10 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         used.append(tr)
         design_s_all.append(ds)
     table = _mean_over_passes(tables, step_m)
+    has_gauge = gauge_t_s is not None and gauge_t_s.size >= 2
+    not_measured = {} if has_gauge else not_measured_without_gauge(table, trolley.other_rail)
+    for t in tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
+        t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
     exceedances: list[dict] = []
     skipped: list[dict] = []
     for c in checks:
@@ -383,7 +401,11 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         else:
             exceedances += [dict(e, pass_index=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
                             if np.ptp(tr.chainage_m) >= c.chord_m
-                            for e in _indicator_exceedances(tr, design_track, ds, c)]
+                            for e in _indicator_exceedances(tr, design_track, ds, c)
+                            if not (not_measured and e["check"] == f"{c.name}:{trolley.other_rail}_lateral")]
+            if not_measured:
+                skipped.append({"check": c.name, "columns": [f"{trolley.other_rail}_lateral"],
+                                "reason": f"not measured ({trolley.other_rail}_lateral: {NO_GAUGE})"})
     di_series, di_defects = [], []
     if pitch_rate_radps is not None and cfg.deformation_index.enabled:
         dcfg = cfg.deformation_index
@@ -408,6 +430,7 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
         "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
         "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
+        "not_measured": not_measured,
         "tolerance_table": tolerances[0] if tolerances else None,
         "tolerance_checks": [{"name": c.name, "kind": c.kind,
                               "columns": c.columns() if c.kind == "limit" else [f"{r}_{comp}" for r in RAILS
@@ -478,6 +501,9 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
             for comp in ("vertical", "lateral"):
                 col = f"{side}_{comp}_versine_{fmt_length(chord)}m_mm"
                 rows = np.vstack([t[col][(i >= k0) & (i <= k1)] for t, i in zip(tables, idx)])
+                if not np.isfinite(rows).any():  # a column the sensors do not measure (not_measured_without_gauge)
+                    out[col] = {"not_measured": True}
+                    continue
                 try:
                     r = repeatability(rows / 1e3, limit, step_m * np.arange(k0, k1 + 1))
                 except EvaluationError as exc:  # reported, not raised: passes may share no point
@@ -498,10 +524,8 @@ def load_design(path: Path) -> DesignAlignment:
     if suffix not in (".yaml", ".yml"):
         raise ConfigError(f"{path}: unknown design file type {suffix or '(no suffix)'!r} "
                           "(.xml / .landxml: LandXML 1.2; .yaml / .yml: YAML)")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: unreadable design alignment ({str(exc).splitlines()[0]})") from None
+    from ..yamlio import load_yaml
+    data = load_yaml(path, "design alignment")
     if isinstance(data, dict) and "alignment" in data:
         data = data["alignment"]
     if not isinstance(data, dict):

@@ -27,6 +27,7 @@ import numpy as np
 import yaml
 
 from ..errors import VisionError
+from ..sensors.fileio import write_text_atomic
 from .camera import CameraLaserUnit, CameraModel, intersect_rays_with_plane, plane_to_frame
 from .stripe import stripe_centres
 
@@ -182,7 +183,7 @@ def board_object_points(inner: tuple[int, int], square_m: float) -> np.ndarray:
 
 def write_calibration(results: list[CalibrationResult], path: str | Path) -> None:
     """Write the calibrated units (one per side) and their residuals as YAML."""
-    Path(path).write_text(yaml.safe_dump({"units": [r.to_dict() for r in results]}, sort_keys=False))
+    write_text_atomic(path, yaml.safe_dump({"units": [r.to_dict() for r in results]}, sort_keys=False))
 
 
 def load_calibration(path: str | Path) -> dict[str, CameraLaserUnit]:
