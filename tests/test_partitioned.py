@@ -222,11 +222,17 @@ def test_ctrl_c_during_a_step_leaves_no_process_behind(survey, monkeypatch):
     def interrupt():
         started.wait(30.0)
         os.kill(parent, signal.SIGINT)
+    # Python's own Ctrl-C handler, whatever this process inherited (pytest-xdist's workers and
+    # background jobs of a shell start with SIGINT ignored)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     threading.Thread(target=interrupt, daemon=True).start()
     three = _with_parts(problem, 75.0)
     tic = time.perf_counter()
-    with pytest.raises(KeyboardInterrupt):
-        smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            smooth(replace(three, smoother=three.smoother.model_copy(update={"workers": 3})))
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert time.perf_counter() - tic < 30.0
     assert not multiprocessing.active_children()
 

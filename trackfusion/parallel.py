@@ -14,9 +14,12 @@ its parts; every child has exited when a step returns or raises.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
-from typing import Any, Callable
+import signal
+import threading
+from typing import Any, Callable, Iterator
 
 from .workers import can_fork, fork_context
 
@@ -65,13 +68,14 @@ def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
     ctx = fork_context()
     children = []
     try:
-        for g in groups[1:]:
-            parent_end, child_end = ctx.Pipe()
-            proc = ctx.Process(target=_child, args=(child_end, lambda g=g: reduce(g),
-                                                    lambda given, g=g: back_substitute(g, given)), daemon=True)
-            proc.start()
-            child_end.close()
-            children.append((g, proc, parent_end))
+        with _sigint_deferred():  # a Ctrl-C while forking must not leave a child unknown to the finally
+            for g in groups[1:]:
+                parent_end, child_end = ctx.Pipe()
+                proc = ctx.Process(target=_child, args=(child_end, lambda g=g: reduce(g),
+                                                        lambda given, g=g: back_substitute(g, given)), daemon=True)
+                proc.start()
+                child_end.close()
+                children.append((g, proc, parent_end))
         reduced = [reduce(groups[0])] + [_receive(g, proc, conn) for g, proc, conn in children]
         given = solve(reduced)
         payload = pickle.dumps(given)
@@ -87,6 +91,24 @@ def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
             proc.join()
 
 
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """SIGINT held back while the block runs (only in the main thread, where Python runs signal
+    handlers), then handed to the handler that was in place: a KeyboardInterrupt raised in the
+    middle of ``Process.start`` would leave a forked child that no one kills."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pending.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pending and callable(previous):
+        previous(signal.SIGINT, None)
+
+
 def _died(group: list[int], proc) -> PartWorkerDied:
     proc.join(timeout=5.0)
     code = proc.exitcode
@@ -94,8 +116,15 @@ def _died(group: list[int], proc) -> PartWorkerDied:
     return PartWorkerDied(f"the smoother's worker process of {_name(group)} died ({how})")
 
 
+#: how often [s] a wait for a child's answer returns to Python, so that a Ctrl-C (SIGINT) the
+#: kernel delivered to another thread of this process (GTSAM's, a library's) is acted on at once
+POLL_S = 0.1
+
+
 def _receive(group: list[int], proc, conn) -> Any:
     try:
+        while not conn.poll(POLL_S):  # (a closed pipe polls ready: recv_bytes raises EOFError)
+            pass
         ok, value = pickle.loads(conn.recv_bytes())
     except (EOFError, OSError):
         raise _died(group, proc) from None
