@@ -640,7 +640,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
-            prefetch = OutputPrefetch(None, False)  # (nothing read ahead but for parallel segments)
+            prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None)
             if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
                 from .sensors.spill import SpillArrays, SpilledImu
                 spilled = SpilledImu(problem.imu, stage)  # the IMU read from disk chunk by chunk
@@ -663,8 +663,6 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
             else:
                 # one batch (its steps in exact time parts with smoother.part_s, fusion/partitioned.py);
                 # the reference read on the CPU the solve leaves idle (output_prefetch.py)
-                prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None,
-                                          cfg.outputs.report)
                 prefetch.read_in_child(background)
                 res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
                 tic = time.perf_counter()
