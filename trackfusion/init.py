@@ -42,11 +42,12 @@ NHC_SIGMA_MM_PER_S = {"trolley": 1.0, "rail-vehicle": 50.0, "road-vehicle": 100.
 #: of the class (survey trolleys about 1 m, bogies about 2.5 m), so that the file runs; the odometer
 #: hardly depends on it (a lever arm along the direction it measures), the wheel path does (off)
 PLACEHOLDER_WHEELBASE_M = {"trolley": 1.0, "rail-vehicle": 2.5}
-#: a road vehicle's GNSS correlated-error model: RTK datasheets' baseline-dependent part (about
-#: 1 ppm horizontal, 1.5 ppm vertical at a 3 km baseline: residual atmosphere and orbit, changing over
-#: tens of minutes); a moving car's carrier multipath decorrelates within a second (white). The
-#: pipeline's own default (8 / 15 mm, 300 s) is a railway's: masts, catenary and cuttings.
-ROAD_GNSS_CORRELATED = {"correlated_sigma_h_mm": 3.0, "correlated_sigma_v_mm": 5.0, "correlation_time_s": 600.0}
+#: a road vehicle's GNSS correlated-error model: the baseline-dependent part of RTK datasheets
+#: ("8 mm + 1 ppm H, 15 mm + 1 ppm V": 1 ppm at a 3 km baseline; residual atmosphere and orbit
+#: error, changing over tens of minutes); a moving car's carrier multipath decorrelates within a
+#: second (white: the rest of the stated std). The pipeline's own default (8 / 15 mm, 300 s) is a
+#: railway's: masts, catenary and cuttings next to a slow trolley.
+ROAD_GNSS_CORRELATED = {"correlated_sigma_h_mm": 3.0, "correlated_sigma_v_mm": 3.0, "correlation_time_s": 600.0}
 #: keyframe spacing [s] by kind: a road vehicle's loose NHC and 1-10 Hz fixes need no denser ones
 #: (car survey, benchmarks/car_survey.py: the same error at 0.1 s and 0.5 s, a third of the solve)
 KEYFRAME_SPACING_S = {"trolley": 0.1, "rail-vehicle": 0.1, "road-vehicle": 0.5}
@@ -212,9 +213,9 @@ def _sensors_and_factors(d: _Draft, log, kind: str, topics: dict, grade: str | N
         d.put("sensors.gnss.clock_offset_s", 0.0)
     if "gnss" in has and kind == "road-vehicle":
         d.put("factors.gnss", dict(ROAD_GNSS_CORRELATED),
-              "the fixes' slow error (Gauss-Markov): RTK's baseline-dependent part, ~1 ppm horizontal, 1.5 ppm "
-              "vertical at 3 km; scale to your baseline (docs/init.md); the white part: the stated std, "
-              "its scale estimated from the residuals")
+              "the fixes' slow error (Gauss-Markov): the RTK datasheet's baseline-dependent 1 ppm at 3 km; "
+              "scale it to your base-station distance (docs/init.md); the white part: the stated std less "
+              "this, its scale estimated from the residuals")
     else:
         d.put("factors.gnss", "gnss" in has)
     if "inclinometer" in has:
