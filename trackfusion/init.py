@@ -48,9 +48,10 @@ PLACEHOLDER_WHEELBASE_M = {"trolley": 1.0, "rail-vehicle": 2.5}
 #: second (white: the rest of the stated std). The pipeline's own default (8 / 15 mm, 300 s) is a
 #: railway's: masts, catenary and cuttings next to a slow trolley.
 ROAD_GNSS_CORRELATED = {"correlated_sigma_h_mm": 3.0, "correlated_sigma_v_mm": 3.0, "correlation_time_s": 600.0}
-#: keyframe spacing [s] by kind: a road vehicle's loose NHC and 1-10 Hz fixes need no denser ones
-#: (car survey, benchmarks/car_survey.py: the same error at 0.1 s and 0.5 s, a third of the solve)
-KEYFRAME_SPACING_S = {"trolley": 0.1, "rail-vehicle": 0.1, "road-vehicle": 0.5}
+#: keyframe spacing [s] by kind (every GNSS fix gets a keyframe besides): a road vehicle's loose
+#: NHC needs no denser ones (57 min car survey, benchmarks/car_survey.py: the same error to 0.01 mm
+#: at 0.1, 0.5 and 1 s; the run's CPU 42, 17 and 13 s)
+KEYFRAME_SPACING_S = {"trolley": 0.1, "rail-vehicle": 0.1, "road-vehicle": 1.0}
 
 
 @dataclass
