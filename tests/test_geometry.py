@@ -8,7 +8,7 @@ from trackfusion.track import irregularities as irr
 from trackfusion.track.chainage import project_onto_design
 from trackfusion.track.design import DesignAlignment
 from trackfusion.track.geometry import GeometryConfig, compute_geometry, load_tolerances
-from trackfusion.track.irregularity import IrregularitySpec, synthesize
+from trackfusion.simulation.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.rails import TrackModel
 from trackfusion.track.shortwave import (deformation_index, detect_defects, di_amplitude, inverse_chord_filter,
                                          spatial_spectrum)

@@ -24,8 +24,8 @@ from scipy.signal import lfilter
 from .. import geodesy
 from ..errors import SimulationError
 from ..registration.polar import DEFAULT_REFRACTION_K, StationSetup, n_to_polar
+from ..sensors.types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
 from . import noise
-from .types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
 
 ARCSEC = np.pi / 180.0 / 3600.0  #: one arcsecond [rad]
 
