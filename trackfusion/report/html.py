@@ -24,8 +24,8 @@ import numpy as np
 
 from ..errors import SensorDataError
 from ..sensors.fileio import atomic_path, read_csv_table, read_json, read_sidecar, write_text_atomic
-from ..track.plots import column_label, column_unit, measured
 from . import figures
+from .track_plots import column_label, column_unit, measured
 
 IRREGULARITY_COLUMNS = ("left_vertical_mm", "right_vertical_mm", "left_lateral_mm", "right_lateral_mm")
 _VERSINE = re.compile(r"^(left|right)_(vertical|lateral)_versine_[0-9.eE+-]+m_mm$")

@@ -35,7 +35,6 @@ LandXML 1.2 file (``landxml.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -203,13 +202,6 @@ class DesignAlignment:
         except ValidationError as exc:
             raise config_error_from_validation(exc, source) from None
         return cls(cfg)
-
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> "DesignAlignment":
-        """Load an alignment YAML file."""
-        from ..yamlio import load_yaml
-        p = Path(path)
-        return cls.from_dict(load_yaml(p), str(p))
 
     def _locate(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if np.any(~np.isfinite(s)) or np.any(s < -1e-9) or np.any(s > self.length_m + 1e-9):
