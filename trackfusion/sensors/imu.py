@@ -14,18 +14,17 @@ seed 003's at 500 Hz, seed 000's FOG and a tactical MEMS of seed 004's class.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ..strict import StrictModel
 
 DEG = np.pi / 180.0
 ARCSEC = DEG / 3600.0
 G0_MPS2 = 9.80665  #: standard gravity, for micro-g conversions [m/s^2]
 
 
-class ImuSpec(BaseModel):
+class ImuSpec(StrictModel):
     """IMU sensor specification (1-sigma values; units in the names)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
 
     rate_hz: float = Field(200.0, gt=0)
     gyro_arw_deg_per_sqrt_h: float = Field(0.001, ge=0)

@@ -22,18 +22,15 @@ from __future__ import annotations
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 from scipy import fft
 
 from ..errors import config_error_from_validation
+from ..strict import StrictModel
 from ..track.irregularity import COMPONENTS, HALF_ROLLING_BASE_M, IrregularityField, german_psd
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class PsdConfig(_Strict):
+class PsdConfig(StrictModel):
     """Random irregularities from a German spectrum over a wavelength band."""
 
     spectrum: Literal["german_low", "german_high"] = "german_low"
@@ -49,7 +46,7 @@ class PsdConfig(_Strict):
         return self
 
 
-class SinusoidConfig(_Strict):
+class SinusoidConfig(StrictModel):
     """A sinusoid on one or both rails, vertical or lateral, faded in/out over ``taper_m``."""
 
     direction: Literal["vertical", "lateral"] = "vertical"
@@ -62,7 +59,7 @@ class SinusoidConfig(_Strict):
     phase_deg: float = 0.0
 
 
-class WeldDipConfig(_Strict):
+class WeldDipConfig(StrictModel):
     """A dip of ``depth_mm`` and ``length_m`` centred at ``chainage_m`` on one rail (top of rail)."""
 
     rail: Literal["left", "right", "both"] = "left"
@@ -71,7 +68,7 @@ class WeldDipConfig(_Strict):
     length_m: float = Field(0.6, gt=0)
 
 
-class CorrugationConfig(_Strict):
+class CorrugationConfig(StrictModel):
     """Rail-head corrugation: ``wavelength_mm`` 30-300 mm, ``amplitude_mm``, from ``start_m`` to ``end_m``."""
 
     rail: Literal["left", "right", "both"] = "both"
@@ -81,7 +78,7 @@ class CorrugationConfig(_Strict):
     end_m: float
 
 
-class IrregularitySpec(_Strict):
+class IrregularitySpec(StrictModel):
     """All irregularities of a track (any section may be omitted)."""
 
     psd: PsdConfig | None = None

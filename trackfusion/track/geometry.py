@@ -14,10 +14,11 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
 from ..errors import ConfigError, EvaluationError, TrackGeometryError, config_error_from_validation
 from ..evaluation.repeatability import repeatability
+from ..strict import StrictModel
 from . import irregularities as irr
 from .chainage import curvature_matched_chainage, project_onto_design, regrid
 from .design import DesignAlignment
@@ -29,18 +30,14 @@ from .versines import chord_indicator, chord_offsets
 RAILS = ("left", "right")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class AsymmetricChord(_Strict):
+class AsymmetricChord(StrictModel):
     """A chord from ``before_m`` behind the point to ``after_m`` ahead of it [m]."""
 
     before_m: float = Field(ge=0)
     after_m: float = Field(ge=0)
 
 
-class DeformationIndexConfig(_Strict):
+class DeformationIndexConfig(StrictModel):
     """Seed 000's DI: standing below ``v_min_mps``; defect where |DI| > ``threshold_deg_per_m``;
     detections closer than ``merge_m`` are one defect."""
 
@@ -50,7 +47,7 @@ class DeformationIndexConfig(_Strict):
     merge_m: float = Field(0.5, gt=0)
 
 
-class GeometryConfig(_Strict):
+class GeometryConfig(StrictModel):
     """The ``geometry:`` pipeline section (docs/geometry.md)."""
 
     enabled: bool = True
