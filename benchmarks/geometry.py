@@ -1,4 +1,4 @@
-"""Benchmark: track geometry of ``trackfusion run`` against ``geometry_truth.csv`` (issue 6).
+"""Benchmark: track geometry of ``trackfusion run`` against ``geometry_truth.csv``.
 
 Usage: python benchmarks/geometry.py [--seed 1] [--scenarios open-track-gnss bridge-total-station fog-odometer]
 

@@ -1,6 +1,7 @@
 """The package's layout rules, read from the source with ``ast`` (nothing is imported):
 
-- no import cycle among trackfusion modules (every import counts, a function's lazy one too);
+- no import cycle among trackfusion modules (every import counts, a function's lazy one too),
+  nor between the core packages;
 - the core (fusion, registration, track, evaluation) never imports ``pipeline`` or ``report``;
 - random draws (``numpy.random``, ``default_rng``, the ``random`` module) only in ``simulation/``;
 - no file I/O (``open``, reads and writes of files, ``savefig``, ``yaml.safe_load``) in the
@@ -32,6 +33,19 @@ ALLOWED_CYCLES = {
     # sensor_use.py needs pipeline.ClockConfig (pipeline.py is concurrent work): ClockConfig
     # should move beside decide_sensor_use
     frozenset({"trackfusion.pipeline", "trackfusion.sensor_use"}): "sensor_use.py imports pipeline.ClockConfig",
+}
+
+#: (module, imported module) edges that close a cycle between core packages, and why
+ALLOWED_PACKAGE_EDGES = {
+    ("trackfusion.registration.two_stage", "trackfusion.fusion.smoother"):
+        "the two-stage total-station solve (measured worse than the joint solve; deleted once pipeline.py, "
+        "fusion/smoother.py and fusion/problem.py, concurrent work, stop using it)",
+    ("trackfusion.registration.two_stage", "trackfusion.fusion.factors"): "as above",
+    ("trackfusion.registration.two_stage", "trackfusion.fusion.problem"): "as above",
+    # the registration's own types live in fusion files of concurrent work: PrismReadings
+    # (fusion/problem.py) and PRISM_GAP_MIN_S (fusion/faults.py) should move to registration/
+    ("trackfusion.registration.survey", "trackfusion.fusion.problem"): "PrismReadings",
+    ("trackfusion.registration.clock_jumps", "trackfusion.fusion.faults"): "PRISM_GAP_MIN_S",
 }
 
 #: (module, imported module) of a core module importing pipeline or report, and why
@@ -189,6 +203,17 @@ def test_no_import_cycles():
     assert found - set(ALLOWED_CYCLES) == set(), "import cycles: " + "; ".join(
         " <-> ".join(sorted(c)) for c in found - set(ALLOWED_CYCLES))
     assert set(ALLOWED_CYCLES) - found == set(), "gone, remove from ALLOWED_CYCLES"
+
+
+def test_no_cycles_between_core_packages():
+    edges = {(m, i) for m, imports in GRAPH.items() for i in imports
+             if _package(m) in CORE and _package(i) in CORE and _package(m) != _package(i)}
+    packages = {}
+    for m, i in edges - set(ALLOWED_PACKAGE_EDGES):
+        packages.setdefault(_package(m), set()).add(_package(i))
+    graph = {p: packages.get(p, set()) for p in CORE}
+    assert _cycles(graph) == [], sorted(edges - set(ALLOWED_PACKAGE_EDGES))
+    assert set(ALLOWED_PACKAGE_EDGES) <= edges, "gone, remove from ALLOWED_PACKAGE_EDGES"
 
 
 def test_the_core_never_imports_pipeline_or_report():

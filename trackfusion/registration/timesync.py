@@ -226,7 +226,7 @@ def synchronise(station_id: str, t_station_s: np.ndarray, prism_pos_n: np.ndarra
     n_lag = int(np.floor(settings.max_lag_s / settings.lag_step_s + 1e-9))
     coarse = centre_s + settings.lag_step_s * np.arange(-n_lag, n_lag + 1)
     peak = _correlation_peak(station_id, t0, t1, v, odo_t, odo_d, coarse, settings)
-    # issue 8: a station locked onto a fixed reflector reports no motion while the trolley moves;
+    # a mis-lock: a station locked onto a fixed reflector reports no motion while the trolley moves;
     # leave out such speed outliers (against the odometer at the first peak) and correlate again
     keep = _speed_inliers(t0 - peak[4], t1 - peak[4], v, odo_t, odo_d)
     if not keep.all():

@@ -506,7 +506,7 @@ def faults_section(m: dict) -> str:
         return ""
     if not faults:
         return _section("faults", "Detected data faults", "<p>No data fault detected.</p>")
-    parts = []  # issue 8: one table per fault kind, one row per event (times on the IMU clock)
+    parts = []  # the data faults: one table per fault kind, one row per event (times on the IMU clock)
     for name, v in faults.items():
         if isinstance(v, dict) and isinstance(v.get("events"), list):
             extra = {k: x for k, x in v.items() if k not in ("count", "events")}
