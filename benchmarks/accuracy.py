@@ -13,7 +13,7 @@ Usage: python benchmarks/accuracy.py [--seeds 1 2 3] [--variants ...]
    correlated error holds only a few independent samples: evaluation/consistency.py).
 2. ``curved-line`` with its 60 s GNSS outage: the largest position error inside the outage.
 Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes benchmarks/results/accuracy.json.
-Targets (issue 4): vertical MSE <= 0.15 mm, ADEV <= 0.07 mm; lateral MSE <= 0.25, ADEV <= 0.12 mm;
+Targets (relative accuracy of the GNSS survey): vertical MSE <= 0.15 mm, ADEV <= 0.07 mm; lateral MSE <= 0.25, ADEV <= 0.12 mm;
 consistency within 0.5..2. Seed 002's field results: vertical 0.31 / 0.13, lateral 0.51 / 0.25 mm.
 """
 

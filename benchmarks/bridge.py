@@ -18,7 +18,7 @@ noise), run the pipeline (registration in the factor graph) and compare with the
 With ``--variants`` (first seed only) the survey is also fused with ``registration: seed``
 and ``registration: none`` for a side-by-side of the fused results.
 Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes benchmarks/results/bridge.json.
-Targets (issue 5): clocks within 2 ms, tilt within 0.5", round-trip std <= 0.5 mm and max |r|
+Targets (total-station registration): clocks within 2 ms, tilt within 0.5", round-trip std <= 0.5 mm and max |r|
 <= 2 mm (elevation and across the track), absolute RMS <= 1.5 mm, total run < 60 s on 2 cores.
 """
 

@@ -27,7 +27,7 @@ import numpy as np
 from trackfusion import cli
 from trackfusion.evaluation import synthetic as syn
 from trackfusion.evaluation.api import evaluate_trajectories, read_trajectory
-from trackfusion.evaluation.plots import relative_accuracy_png
+from trackfusion.report.evaluation_plots import relative_accuracy_png
 from trackfusion.sensors.fileio import write_csv_table, write_json_atomic
 
 ORIGIN = {"lat_deg": 42.9, "lon_deg": 89.2, "h_m": 60.0}

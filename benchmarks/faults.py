@@ -22,7 +22,7 @@ The clean surveys are cached (read only once simulated); the faulty logs and the
 go to ``--work`` (default: the cache folder).
 Prints tables; writes benchmarks/results/faults.json (GNSS/odometer part) and
 benchmarks/results/faults_total_station.json.
-Targets (issue 8): 5 % of the fixes displaced by 0.3-3 m raise the absolute RMS by < 1.5x and the
+Targets (robustness to data faults): 5 % of the fixes displaced by 0.3-3 m raise the absolute RMS by < 1.5x and the
 5 m relative accuracy by < 1.2x; a 10 s mis-lock causes no error above 1 mm outside it.
 """
 

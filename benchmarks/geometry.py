@@ -1,4 +1,4 @@
-"""Benchmark: track geometry of ``trackfusion run`` against ``geometry_truth.csv`` (issue 6).
+"""Benchmark: track geometry of ``trackfusion run`` against ``geometry_truth.csv``.
 
 Usage: python benchmarks/geometry.py [--seed 1] [--scenarios open-track-gnss bridge-total-station fog-odometer]
 
@@ -37,7 +37,7 @@ from trackfusion import pipeline as P
 from trackfusion.fusion.smoother import smooth
 from trackfusion.fusion.trajectory import densify
 from trackfusion.sensors.fileio import read_csv_table
-from trackfusion.track.geometry import geometry_for_run
+from trackfusion.geometry_inputs import geometry_for_run
 from trackfusion.track.shortwave import inverse_chord_filter
 from trackfusion.track.versines import chord_offsets
 

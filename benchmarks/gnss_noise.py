@@ -50,7 +50,7 @@ def survey(seed: int, stated: float, short: bool) -> Path:
 
 
 def truly_outside(d: Path) -> tuple[int, int]:
-    from trackfusion.sensors.aiding import GnssSpec
+    from trackfusion.simulation.aiding import GnssSpec
     truth = json.loads((d / "truth.json").read_text())
     spec = GnssSpec(**{k: v for k, v in truth["config"]["gnss"].items() if k != "lever_arm_b_m"})
     white, gm, _ = spec.sigmas_m()

@@ -9,7 +9,7 @@ under ``$TMPDIR/trackfusion-bench``. Each run is a fresh process (peak = its VmH
 ``smoother.chunk_s`` / ``overlap_s`` as given, no reference and no fused.mcap; a second fresh
 process only reads the log (``read_log``), which shows how much of the peak is the log in
 memory. With ``--batch`` the shortest run is also made as one batch.
-Target (issue 4 item 5, issue 7 item 6): 20 km within 1.5 x the 2 km peak.
+Target (memory of a long survey): 20 km within 1.5 x the 2 km peak.
 Writes benchmarks/results/long_run.json.
 """
 

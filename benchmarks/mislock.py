@@ -1,4 +1,4 @@
-"""Benchmark: a total station locked onto a wrong target for 10 s (issue 8 target).
+"""Benchmark: a total station locked onto a wrong target for 10 s (robustness target).
 
 Usage: python benchmarks/mislock.py [--seed 1] [--start-s 600] [--duration-s 10]
                                    [--moving-offset-m 0.02 --work DIR]

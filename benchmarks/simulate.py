@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/simulate.py [SCENARIO ...]   (default: bridge-total-station)
 Prints a table and writes benchmarks/results/simulate.json. Each scenario runs in a fresh
-process so its peak memory (ru_maxrss) is its own. Targets (issue 2): the 54 min, 500 Hz
+process so its peak memory (ru_maxrss) is its own. Targets (simulator speed and memory): the 54 min, 500 Hz
 bridge survey in under 60 s and under 2 GB on 2 cores.
 """
 

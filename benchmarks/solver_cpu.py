@@ -10,7 +10,7 @@ tree on the same machine). Reads the log and builds the problem as ``trackfusion
 simulation of benchmarks/speed.py (``--passes`` round trips, 4: 57 min); ``bridge``: seed 1
 of benchmarks/bridge.py (53 min). Writes benchmarks/results/solver_cpu.json (solver_cpu_bridge.json).
 Bridge: ``--solve`` two_stage (default) or joint, ``--seed``.
-Target (issue 4): the estimation core's share of the 60 s hour, about 25 s on a quiet machine.
+Target (speed): the estimation core's share of the 60 s hour, about 25 s on a quiet machine.
 """
 
 from __future__ import annotations

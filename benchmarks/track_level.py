@@ -1,5 +1,5 @@
 """Benchmark: cross-level on the `track-level` scenario (seed 004) from the factor graph and from
-seed 004's own fusion methods (issue 4 item 4).
+seed 004's own fusion methods.
 
 Usage: python benchmarks/track_level.py [--seeds 1 2 3]
 

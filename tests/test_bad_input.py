@@ -1,4 +1,4 @@
-"""Bad input, end to end through the command line (issue 8): exit code 2, one line naming the
+"""Bad input, end to end through the command line: exit code 2, one line naming the
 file, topic, record or config field, no traceback, no output written, inputs unchanged.
 
 Cases: truncated or corrupt log (and ``inputs.allow_truncated`` running on the readable part),

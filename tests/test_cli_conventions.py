@@ -52,7 +52,7 @@ def test_yaml_syntax_errors_name_file_line_and_column(tmp_path, capsys, kind, ar
 
 
 def test_tolerance_and_design_yaml_use_the_same_loader(tmp_path):
-    from trackfusion.track.geometry import load_design, load_tolerances
+    from trackfusion.geometry_inputs import load_design, load_tolerances
     bad = tmp_path / "t.yaml"
     bad.write_text("checks:\n  - {name: a, kind: limit\n")
     with pytest.raises(ConfigError, match=rf"{bad}:3:1: not valid YAML"):

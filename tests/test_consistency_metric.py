@@ -12,7 +12,7 @@ import pytest
 from trackfusion.evaluation.consistency import consistency_of, effective_samples, pooled, rms_interval
 from trackfusion.evaluation.errors_series import Trajectory
 from trackfusion.evaluation.reference import consistency, consistency_detail
-from trackfusion.sensors.noise import gauss_markov
+from trackfusion.simulation.noise import gauss_markov
 
 
 def test_white_errors():

@@ -8,7 +8,7 @@ import pytest
 from trackfusion import cli
 from trackfusion.evaluation import synthetic as syn
 from trackfusion.evaluation.api import EvaluationConfig, evaluate_files
-from trackfusion.evaluation.plots import relative_accuracy_png
+from trackfusion.report.evaluation_plots import relative_accuracy_png
 from trackfusion.sensors.fileio import write_csv_table
 
 ORIGIN = {"lat_deg": 43.3, "lon_deg": 89.6, "h_m": 50.0}

@@ -1,4 +1,4 @@
-"""Data faults the fusion survives (issue 8): detection units on synthetic series, the injectors,
+"""Data faults the fusion survives: detection units on synthetic series, the injectors,
 and end-to-end runs of injected faults against the clean run (5 % GNSS outliers: absolute RMS
 < 1.5x, 5 m relative accuracy < 1.2x), determinism, and runs without a static period."""
 

@@ -1,4 +1,4 @@
-"""Total-station faults (issue 8): mis-locks and gaps listed in metrics.json ``faults``, station
+"""Total-station faults: mis-locks and gaps listed in metrics.json ``faults``, station
 clock jumps found and corrected (or refused). Unit tests on synthetic readings, and one short
 bridge survey with a mis-lock and a gap of TS01 and a clock jump of TS02 in the same log."""
 

@@ -13,7 +13,8 @@ from trackfusion.fusion.problem import FusionProblem, TrolleyFrame
 from trackfusion.fusion.settings import FactorSettings, KeyframeSettings
 from trackfusion.fusion.smoother import smooth
 from trackfusion.rotations import R_from_ypr, ypr_from_R
-from trackfusion.sensors.imu import IMU_GRADES, simulate_imu
+from trackfusion.sensors.imu import IMU_GRADES
+from trackfusion.simulation.imu import simulate_imu
 
 ORIGIN = geodesy.Origin(47.0, 8.0, 400.0)
 YAW, PITCH, ROLL = np.radians([63.0, 0.8, -1.5])

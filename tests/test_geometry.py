@@ -7,8 +7,9 @@ from trackfusion.errors import ConfigError, TrackGeometryError
 from trackfusion.track import irregularities as irr
 from trackfusion.track.chainage import project_onto_design
 from trackfusion.track.design import DesignAlignment
-from trackfusion.track.geometry import GeometryConfig, compute_geometry, load_tolerances
-from trackfusion.track.irregularity import IrregularitySpec, synthesize
+from trackfusion.geometry_inputs import load_tolerances
+from trackfusion.track.geometry import GeometryConfig, compute_geometry
+from trackfusion.simulation.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.rails import TrackModel
 from trackfusion.track.shortwave import (deformation_index, detect_defects, di_amplitude, inverse_chord_filter,
                                          spatial_spectrum)
@@ -344,7 +345,7 @@ def test_chainage_method_needs_a_design_where_it_should(track):
 
 
 def test_report_figures(track):
-    from trackfusion.track import plots
+    from trackfusion.report import track_plots as plots
     s = np.arange(3.0, 40.0, 0.01)
     geo, pos_n, R_nb = _known_pose(track, 1.2, (0.0, -0.7175, 0.25), (0, 0, 0), s)
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")

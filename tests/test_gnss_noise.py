@@ -14,7 +14,7 @@ from surveys import SHORT_OPEN_TRACK, errors_against_truth
 from trackfusion import pipeline as P
 from trackfusion.fusion import gnss_noise
 from trackfusion.fusion.factors import LinearBlocks
-from trackfusion.sensors.aiding import GnssSpec
+from trackfusion.simulation.aiding import GnssSpec
 from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.scenarios import simulate_to_dir
 

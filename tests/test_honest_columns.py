@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from trackfusion.report.html import RunFiles, geometry_section
-from trackfusion.track.plots import column_label
+from trackfusion.report.track_plots import column_label
 from trackfusion.track.geometry import GeometryConfig, ToleranceCheck, compute_geometry
-from trackfusion.track.irregularity import IrregularitySpec, synthesize
+from trackfusion.simulation.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.design import DesignAlignment
 from trackfusion.track.rails import TrackModel
 from trackfusion.track.traces import TrolleyGeometry

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from trackfusion.fusion.imu_noise import BIAS_FLOOR, estimate_imu_noise
-from trackfusion.sensors.imu import IMU_GRADES, simulate_imu
+from trackfusion.sensors.imu import IMU_GRADES
+from trackfusion.simulation.imu import simulate_imu
 from trackfusion.sensors.types import ImuData
 
 DEG = np.pi / 180.0

@@ -26,8 +26,7 @@ from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.simulation.config import available_scenarios, load_scenario
 from trackfusion.simulation.scenarios import simulate_to_dir
 from trackfusion.track.design import DesignAlignment
-from trackfusion.track.geometry import load_design
-from trackfusion.track.landxml import read_landxml
+from trackfusion.geometry_inputs import load_design, read_landxml
 
 CURVE_XML = Path(__file__).parent / "data" / "landxml_curve.xml"
 

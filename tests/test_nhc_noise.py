@@ -19,7 +19,7 @@ from trackfusion.simulation.config import load_scenario
 from trackfusion.simulation.nhc_sigma import max_speed_mps, nhc_sigmas_mm_per_s
 from trackfusion.simulation.trolley import TrolleyGeometry, frame_from_contacts, wheel_contacts
 from trackfusion.track.design import DesignAlignment
-from trackfusion.track.irregularity import IrregularitySpec, PsdConfig, synthesize, synthesize_psd
+from trackfusion.simulation.irregularity import IrregularitySpec, PsdConfig, synthesize, synthesize_psd
 from trackfusion.track.nhc_noise import (equivalent_white_sigma_mps, gyro_noise_velocity_sigma_mps,
                                          informed_band_sigma_mps, nhc_velocity_rms_mps,
                                          nhc_velocity_series_mps, rigid_trolley_transfer)

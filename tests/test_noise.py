@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from trackfusion.sensors import noise
+from trackfusion.simulation import noise
 
 
 def test_gauss_markov_variance_and_correlation_time():

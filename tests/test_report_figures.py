@@ -8,7 +8,7 @@ import pytest
 
 from trackfusion.report import figures
 from trackfusion.report.html import num
-from trackfusion.track.plots import column_label
+from trackfusion.report.track_plots import column_label
 
 
 def test_levels_are_drawn_as_plus_minus_lines_and_exceedances_as_spots():

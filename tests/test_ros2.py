@@ -22,8 +22,8 @@ from trackfusion.cli import main
 from trackfusion.errors import ConfigError, SensorDataError
 from trackfusion.sensors import cdr, imu_axes
 from trackfusion.sensors.fileio import read_csv_table
-from trackfusion.sensors.mcap_log import inspect_log, read_log, write_log
-from trackfusion.sensors.ros2 import read_bag
+from trackfusion.sensors.mcap_log import read_log, write_log
+from trackfusion.sensors.ros2 import inspect_log_or_bag, read_bag
 from trackfusion.sensors.types import ImuData, SensorLog
 from trackfusion.simulation.scenarios import simulate_to_dir
 
@@ -120,7 +120,7 @@ def test_rosbags_bag_reads_back_to_the_values_written(tmp_path, storage):
         assert np.array_equal(log.gnss.cov_enu_m2[0], np.diag([1e-4, 2e-4, 9e-4]))
         assert np.array_equal(log.odometer.distance_m, 0.01 * np.arange(25)) and log.odometer.ticks[-1] == 240
         assert log.metadata["ros2_topics"] == {"imu": "/imu/data", "gnss": "/fix", "odometer": "/wheel"}
-        summary = {t.topic: t for t in inspect_log(path).topics}
+        summary = {t.topic: t for t in inspect_log_or_bag(path).topics}
         assert summary["/imu/data"].count == 50 and summary["/imu/data"].schema == "sensor_msgs/msg/Imu"
         assert abs(summary["/imu/data"].rate_hz - 500.0) < 1e-6 and summary["/wheel"].count == 25
 

@@ -64,7 +64,7 @@ def _sections(text: str) -> set[str]:
 
 
 def _add_contract_outputs(src, dst):
-    """A copy of a run folder with what issues 5, 6 and 8 add: geometry.csv (columns of the
+    """A copy of a run folder with the total-station, geometry and fault outputs: geometry.csv (columns of the
     helper brief, built from the simulator's rail truth) and metrics geometry / time_sync /
     registration / rejected_prism / faults."""
     shutil.copytree(src, dst)

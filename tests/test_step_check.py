@@ -1,4 +1,4 @@
-"""The step check of a total station's own readings (registration/steps.py, issue 8): a
+"""The step check of a total station's own readings (registration/steps.py): a
 reflector moving along with the prism a few centimetres away is found from the step where the
 mis-lock starts and the step back where it ends; curvature, braking, a hard start, a clock step
 and hand-overs are not flagged."""

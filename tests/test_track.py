@@ -7,7 +7,7 @@ from scipy.special import fresnel
 
 from trackfusion.errors import ConfigError, TrackGeometryError
 from trackfusion.track.design import DesignAlignment
-from trackfusion.track.irregularity import IrregularitySpec, german_psd, synthesize
+from trackfusion.simulation.irregularity import IrregularitySpec, german_psd, synthesize
 from trackfusion.track.rails import TrackModel
 
 CURVE = {

@@ -96,7 +96,7 @@ def test_complementary_filter_transfer_at_its_crossover():
 
 
 def test_inverse_first_order_lag_undoes_the_simulated_inclinometer_lag():
-    from trackfusion.sensors.aiding import first_order_lag
+    from trackfusion.simulation.aiding import first_order_lag
     t = DT * np.arange(5000)
     ramp = np.clip((t - 20) * 1e-3, 0, 0.08)                  # a cant ramp, then constant
     lagged = first_order_lag(ramp, DT, 0.5)

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from trackfusion.errors import ConfigError
-from trackfusion.track.geometry import ToleranceCheck, limit_exceedances, load_tolerances
+from trackfusion.geometry_inputs import load_tolerances
+from trackfusion.track.geometry import ToleranceCheck, limit_exceedances
 from trackfusion.track.quality import quality_index, section_std
 
 STEP = 0.25

@@ -29,9 +29,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from .sensors.mcap_log import inspect_log
+    from .sensors.ros2 import inspect_log_or_bag
 
-    print(inspect_log(args.log).format())
+    print(inspect_log_or_bag(args.log).format())
     return 0
 
 

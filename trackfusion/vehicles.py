@@ -25,10 +25,11 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from .errors import ConfigError
 from .fusion.problem import TrolleyFrame
+from .strict import StrictModel
 
 Vec3 = tuple[float, float, float]
 
@@ -36,11 +37,7 @@ Vec3 = tuple[float, float, float]
 VEHICLE_KINDS = ("trolley", "rail-vehicle", "road-vehicle")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-
-class _Mounted(_Strict):
+class _Mounted(StrictModel):
     """Where the IMU sits: its origin in ``v`` [m] and the mounting angles of ``b`` in ``v``
     (yaw, pitch, roll) [deg]."""
 

@@ -109,7 +109,7 @@ def align(gyro_b: np.ndarray, accel_b: np.ndarray, lat_rad: float, gyro_bias_deg
     return Alignment(roll, pitch, 0.0, "none", static_s)
 
 
-# --- which data the alignment uses (issue 8: a run without a static period at one end) ---------------
+# --- which data the alignment uses (a run without a static period at one end) -------------------------
 
 #: a static interval starting (ending) within this time of the first (last) IMU sample is at that end [s]
 END_MARGIN_S = 5.0

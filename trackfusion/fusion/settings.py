@@ -11,16 +11,13 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
 from ..registration.timesync import TimeSyncSettings
+from ..strict import StrictModel
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
-
-
-class _Factor(_Strict):
+class _Factor(StrictModel):
     enabled: bool = True
 
     @model_validator(mode="before")
@@ -157,7 +154,7 @@ class TotalStationFactorSettings(_Factor):
     solve: Literal["joint", "two_stage"] = "joint"
 
 
-class FactorSettings(_Strict):
+class FactorSettings(StrictModel):
     imu: ImuFactorSettings = ImuFactorSettings()
     zupt: ZuptSettings = ZuptSettings()
     nhc: NhcSettings = NhcSettings()
@@ -168,7 +165,7 @@ class FactorSettings(_Strict):
     total_stations: TotalStationFactorSettings = TotalStationFactorSettings()
 
 
-class KeyframeSettings(_Strict):
+class KeyframeSettings(StrictModel):
     """``spacing_s``: time between keyframes; ``spacing_without_wheel_path_s``: the spacing of a
     run that leaves the configured wheel-path factor out (runs in chunks, fusion/chunks.py),
     null: ``spacing_s`` (the factor lets keyframes be sparser: docs/solver_speed.md);
@@ -180,7 +177,7 @@ class KeyframeSettings(_Strict):
     bias_segment_s: float = Field(300.0, gt=0)
 
 
-class StaticSettings(_Strict):
+class StaticSettings(StrictModel):
     """Static-interval detection (moving standard deviations over ``window_s``).
 
     The gyro and accelerometer thresholds default to four times the IMU's per-sample white
@@ -202,7 +199,7 @@ class StaticSettings(_Strict):
         return gyro, accel
 
 
-class SmootherSettings(_Strict):
+class SmootherSettings(StrictModel):
     """Gauss-Newton iterations (stop when the cost falls by less than ``relative_tolerance``)
     and the spacing of the marginal covariances behind the sigma columns.
 

@@ -19,21 +19,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from .. import geodesy
 from ..errors import RegistrationError
+from ..strict import StrictModel
 from .polar import StationSetup, n_to_polar, polar_to_n
 
 ARCSEC = np.pi / 180.0 / 3600.0
 Vec3 = tuple[float, float, float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class ControlReading(_Strict):
+class ControlReading(StrictModel):
     """A set-up reading to a control point: ``point`` (a name in ``control_points``), horizontal
     and zenith angle [deg] as read, slope distance [m] to the control point's reflector."""
 
@@ -43,7 +40,7 @@ class ControlReading(_Strict):
     slope_distance_m: float = Field(gt=0)
 
 
-class StationSetupConfig(_Strict):
+class StationSetupConfig(StrictModel):
     """One station in a pipeline YAML: either ``pos_n_m`` (instrument point, or the ground mark
     when ``instrument_height_m`` > 0) and ``orientation_deg`` (azimuth of the horizontal circle's
     zero, clockwise from north), or ``resection`` readings to three or more control points.

@@ -1,4 +1,4 @@
-"""Step check of a total station's own readings: mis-locks found before fusion (issue 8).
+"""Step check of a total station's own readings: mis-locks found before fusion.
 
 A station that locks onto another reflector travelling with the prism (a second prism on the
 trolley, a reflective vest beside it) reports a track that is as smooth as the true one but

@@ -50,7 +50,7 @@ class StationPrep:
     sync: timesync.TimeSync | None
     resection: Resection | None
     seed: SeedRegistration | None = None
-    flagged: np.ndarray | None = None  # (N,) bool: the step check's mis-locked readings (issue 8)
+    flagged: np.ndarray | None = None  # (N,) bool: the step check's mis-locked readings
 
 
 @dataclass
@@ -95,7 +95,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
         setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
         pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
                                      cfg.refraction_k, *prec)
-        flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # issue 8: another reflector
+        flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # a mis-lock onto another reflector
         ok = ~flagged
         sync = None
         if sc.clock_offset_s is not None:
@@ -107,7 +107,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
             sync = timesync.synchronise(sid, d.t_s[ok], pos_n[ok], odometer.t_s, odometer.distance_m, fs.time_sync)
             offset = sync.offset_s
         t_station = d.t_s
-        if odometer is not None:  # issue 8: steps of the station's clock (clock_jumps.py)
+        if odometer is not None:  # steps of the station's clock (clock_jumps.py)
             t_station, jumps = correct_station_clock_jumps(sid, d.t_s, offset, pos_n, cov_n, odometer.t_s,
                                                            odometer.distance_m, excluded=flagged)
             if jumps and sync is not None:  # the correlation again, on the corrected stamps
@@ -115,7 +115,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
                                             fs.time_sync)
                 offset = sync.offset_s
             clock_jumps += [{**j, "t_s": float(t_station[j["index"]] - offset)} for j in jumps]
-        if odometer is not None:  # issue 8: a reflector that does not move with the trolley
+        if odometer is not None:  # a reflector that does not move with the trolley
             still, more = motionless_mislocks(t_station - offset, pos_n, unpaired, odometer.t_s, odometer.distance_m)
             flagged, mislocks = flagged | still, sorted(mislocks + more, key=lambda m: m["first"])
         step_mislocks += [{"station": sid, "start_s": float(t_station[m["first"]] - offset),

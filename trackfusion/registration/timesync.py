@@ -37,12 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from ..errors import RegistrationError
+from ..strict import StrictModel
 
 
-class TimeSyncSettings(BaseModel):
+class TimeSyncSettings(StrictModel):
     """``factors.total_stations.time_sync`` of a pipeline YAML. ``max_lag_s``: lags searched are
     ``[-max_lag_s, max_lag_s]``, first on a grid of ``lag_step_s``, then on ``fine_step_s`` within
     two coarse steps of the coarse peak; ``min_r``: smallest acceptable ``r_max``;
@@ -51,8 +52,6 @@ class TimeSyncSettings(BaseModel):
     travel (odometer) in the station's interval; ``max_gap_factor``: readings further apart than
     this many median intervals are not differenced; prism speeds above ``max_speed_factor`` times
     the odometer's highest speed plus ``speed_margin_mps`` are left out (jumps)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     max_lag_s: float = Field(10.0, gt=0)
     lag_step_s: float = Field(0.1, gt=0)
@@ -227,7 +226,7 @@ def synchronise(station_id: str, t_station_s: np.ndarray, prism_pos_n: np.ndarra
     n_lag = int(np.floor(settings.max_lag_s / settings.lag_step_s + 1e-9))
     coarse = centre_s + settings.lag_step_s * np.arange(-n_lag, n_lag + 1)
     peak = _correlation_peak(station_id, t0, t1, v, odo_t, odo_d, coarse, settings)
-    # issue 8: a station locked onto a fixed reflector reports no motion while the trolley moves;
+    # a mis-lock: a station locked onto a fixed reflector reports no motion while the trolley moves;
     # leave out such speed outliers (against the odometer at the first peak) and correlate again
     keep = _speed_inliers(t0 - peak[4], t1 - peak[4], v, odo_t, odo_d)
     if not keep.all():

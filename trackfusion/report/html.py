@@ -24,8 +24,8 @@ import numpy as np
 
 from ..errors import SensorDataError
 from ..sensors.fileio import atomic_path, read_csv_table, read_json, read_sidecar, write_text_atomic
-from ..track.plots import column_label, column_unit, measured
 from . import figures
+from .track_plots import column_label, column_unit, measured
 
 IRREGULARITY_COLUMNS = ("left_vertical_mm", "right_vertical_mm", "left_lateral_mm", "right_lateral_mm")
 _VERSINE = re.compile(r"^(left|right)_(vertical|lateral)_versine_[0-9.eE+-]+m_mm$")
@@ -506,7 +506,7 @@ def faults_section(m: dict) -> str:
         return ""
     if not faults:
         return _section("faults", "Detected data faults", "<p>No data fault detected.</p>")
-    parts = []  # issue 8: one table per fault kind, one row per event (times on the IMU clock)
+    parts = []  # the data faults: one table per fault kind, one row per event (times on the IMU clock)
     for name, v in faults.items():
         if isinstance(v, dict) and isinstance(v.get("events"), list):
             extra = {k: x for k, x in v.items() if k not in ("count", "events")}

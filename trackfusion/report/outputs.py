@@ -28,7 +28,7 @@ def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, 
     figures of ``table`` and the geometry (:func:`~trackfusion.report.html.table_images`), else {}."""
     from ..sensors.fileio import read_sidecar, write_csv_table
     from ..sensors.fused import write_fused_mcap
-    if geometry is not None:  # issue 6: geometry.csv + geometry.json
+    if geometry is not None:  # the track geometry: geometry.csv + geometry.json
         write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
                         fmt="%.12g", extra=geometry.sidecar())
     if cfg.outputs.fused_mcap:

@@ -243,3 +243,13 @@ def encode(msgtype: str, frame_id: str, values: dict[str, np.ndarray], n: int) -
     for path, v in values.items():
         out[path] = v
     return out
+
+
+def msgdef(msgtype: str) -> str:
+    """The ROS 2 message definition text of ``msgtype`` with its dependencies (MCAP schema
+    encoding ``ros2msg``), as ``rosbags`` generates it."""
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    if msgtype == "trackfusion_msgs/msg/OdometerDistance":
+        store.register(get_types_from_msg(ODOMETER_DISTANCE_MSG, msgtype))
+    return store.generate_msgdef(msgtype, ros_version=2)[0]

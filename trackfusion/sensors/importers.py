@@ -23,9 +23,10 @@ from typing import Any, Union
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from ..errors import ConfigError, SensorDataError, config_error_from_validation
+from ..strict import StrictModel
 from ..yamlio import load_yaml
 from .fileio import read_json, write_json_atomic, write_text_atomic
 from .imu_axes import axes_matrix, check_imu_frame, rates_from_increments, to_body
@@ -50,25 +51,21 @@ UNITS: dict[str, dict[str, float]] = {
 Column = Union[str, int]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Col(_Strict):
+class Col(StrictModel):
     """One column (header name, or 0-based index when the file has no header) and its unit."""
 
     column: Column
     unit: str | None = None
 
 
-class Cols(_Strict):
+class Cols(StrictModel):
     """Several columns (x, y, z or the 9 covariance entries row by row) sharing one unit."""
 
     columns: list[Column]
     unit: str | None = None
 
 
-class FileSpec(_Strict):
+class FileSpec(StrictModel):
     """The text layout common to every sensor file."""
 
     file: str
@@ -131,7 +128,7 @@ class GaugeSpec(FileSpec):
     gauge: Col
 
 
-class ImportMapping(_Strict):
+class ImportMapping(StrictModel):
     """The mapping YAML: one section per sensor present; paths relative to the YAML's folder."""
 
     metadata: str | None = None

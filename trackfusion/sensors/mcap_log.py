@@ -183,8 +183,7 @@ _MSGDEFS: dict[str, bytes] = {}
 def _msgdef(msgtype: str) -> bytes:
     """The ``ros2msg`` schema text of a ROS 2 type (made once per process)."""
     if msgtype not in _MSGDEFS:
-        from .ros2 import msgdef
-        _MSGDEFS[msgtype] = msgdef(msgtype).encode()
+        _MSGDEFS[msgtype] = cdr.msgdef(msgtype).encode()
     return _MSGDEFS[msgtype]
 
 
@@ -1670,11 +1669,8 @@ def inspect_log(path: str | Path) -> LogSummary:
     """Check a log fully (as :func:`read_log`, strict) and summarise it per topic. fused.mcap's own
     topics (FUSED_TOPIC_PREFIXES: trajectory, fixes and rails, ``foxglove.*`` schemas) are
     summarised from their log times, after the sensor topics, without decoding their payloads.
-    A ROS 2 bag is summarised by :func:`.ros2.inspect_bag`."""
+    A ROS 2 bag is summarised by :func:`.ros2.inspect_bag` (either: :func:`.ros2.inspect_log_or_bag`)."""
     p = Path(path)
-    from .ros2 import inspect_bag, is_bag
-    if is_bag(p):
-        return inspect_bag(p)
     others: list[tuple[str, str, np.ndarray]] = []
     log, scan = _read(p, None, allow_truncated=False, others=others)
     entries: list[tuple[str, str, np.ndarray]] = []

@@ -230,16 +230,6 @@ def read_bag(path: str | Path, topics: dict[str, str | None] | None = None, sour
     return log, damage
 
 
-def msgdef(msgtype: str) -> str:
-    """The ROS 2 message definition text of ``msgtype`` with its dependencies (MCAP schema
-    encoding ``ros2msg``), as ``rosbags`` generates it."""
-    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    if msgtype == "trackfusion_msgs/msg/OdometerDistance":
-        store.register(get_types_from_msg(cdr.ODOMETER_DISTANCE_MSG, msgtype))
-    return store.generate_msgdef(msgtype, ros_version=2)[0]
-
-
 def inspect_bag(path: str | Path):
     """:func:`~trackfusion.sensors.mcap_log.inspect_log` of a bag: the topics of the roles read
     (found as by :func:`read_bag`, strictly: no damage allowed), summarised from their times,
@@ -254,3 +244,11 @@ def inspect_bag(path: str | Path):
               if data[role] is not None]
     size = sum(f.stat().st_size for f in p.iterdir() if f.is_file()) if p.is_dir() else p.stat().st_size
     return LogSummary(p, size, "ROS 2 bag", topics, sorted(log.metadata))
+
+
+def inspect_log_or_bag(path: str | Path):
+    """A log summarised per topic, whichever its format: a ROS 2 bag by :func:`inspect_bag`, a
+    trackfusion MCAP log by :func:`~trackfusion.sensors.mcap_log.inspect_log`."""
+    from .mcap_log import inspect_log
+    p = Path(path)
+    return inspect_bag(p) if is_bag(p) else inspect_log(p)

@@ -1,1 +1,3 @@
-"""Survey simulation: truth motion of a trolley on irregular rails, sensor logs, truth files."""
+"""Survey simulation: everything that makes synthetic data -- track irregularity synthesis, trolley
+motion, every sensor model (IMU, odometer, GNSS, total stations, inclinometer, gauge, vision), the
+random error processes, fault injection -- and the scenario files that join them into logs and truth."""

@@ -13,18 +13,15 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from ..errors import ConfigError, config_error_from_validation
+from ..strict import StrictModel
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "data" / "scenarios"
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class OriginConfig(_Strict):
+class OriginConfig(StrictModel):
     """Origin of ``n``: geodetic latitude/longitude [deg] and ellipsoidal height [m]."""
 
     lat_deg: float = Field(ge=-90, le=90)
@@ -32,7 +29,7 @@ class OriginConfig(_Strict):
     h_m: float = 0.0
 
 
-class TrolleyConfig(_Strict):
+class TrolleyConfig(StrictModel):
     """Trolley geometry (see :class:`trackfusion.simulation.trolley.TrolleyGeometry`)."""
 
     wheelbase_m: float = Field(1.0, gt=0)
@@ -42,7 +39,7 @@ class TrolleyConfig(_Strict):
     odometer_wheel: Literal["rear", "front"] = "rear"
 
 
-class SegmentConfig(_Strict):
+class SegmentConfig(StrictModel):
     """One motion segment: either ``hold_s`` or ``move_to_m`` (+ ``speed_mps``, ``accel_mps2``)."""
 
     hold_s: float | None = Field(None, gt=0)
@@ -59,7 +56,7 @@ class SegmentConfig(_Strict):
         return self
 
 
-class MotionConfig(_Strict):
+class MotionConfig(StrictModel):
     """Motion plan: start chainage [m] and the segments, optionally repeated ``passes`` times."""
 
     start_m: float
@@ -67,14 +64,14 @@ class MotionConfig(_Strict):
     passes: int = Field(1, ge=1)
 
 
-class TruthConfig(_Strict):
+class TruthConfig(StrictModel):
     """Truth output: trajectory rate [Hz] (>= 50) and geometry chainage step [m]."""
 
     rate_hz: float = Field(100.0, ge=50)
     geometry_step_m: float = Field(0.25, gt=0)
 
 
-class ScenarioConfig(_Strict):
+class ScenarioConfig(StrictModel):
     """A whole simulated survey. Sensor sections are passed to the sensor models' own strict specs."""
 
     name: str

@@ -25,9 +25,9 @@ import numpy as np
 
 from .. import geodesy
 from ..errors import SimulationError
-from ..sensors import noise
-from ..sensors.aiding import TotalStationSpec
 from ..sensors.types import GnssData, ImuData, OdometerData, SensorLog, TotalStationData
+from . import noise
+from .aiding import TotalStationSpec
 
 __all__ = ["inject_gnss_outliers", "inject_gnss_float", "inject_gnss_outage", "inject_odometer_slip",
            "inject_odometer_gross_errors", "inject_clock_jump", "drop_static_start", "inject_imu_saturation",

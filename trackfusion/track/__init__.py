@@ -1,1 +1,1 @@
-"""Track: design alignment, irregularity synthesis, rail geometry and track-geometry products."""
+"""Track: design alignment, irregularity spectra, rail geometry and track-geometry products (pure: no file I/O)."""

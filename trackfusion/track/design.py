@@ -35,22 +35,18 @@ LandXML 1.2 file (``landxml.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from ..errors import ConfigError, TrackGeometryError, config_error_from_validation
+from ..strict import StrictModel
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class HorizontalElement(_Strict):
+class HorizontalElement(StrictModel):
     """One horizontal element (see the module docstring). A clothoid may give its end radii
     explicitly (``start_radius_m``, ``end_radius_m``: signed like ``radius_m``, ``.inf`` for a
     straight end); an end left out follows the neighbouring element."""
@@ -59,8 +55,8 @@ class HorizontalElement(_Strict):
     length_m: float = Field(gt=0, allow_inf_nan=False)
     radius_m: float | None = Field(None, allow_inf_nan=False)
     cant_mm: float = Field(0.0, ge=0, allow_inf_nan=False)
-    start_radius_m: float | None = None
-    end_radius_m: float | None = None
+    start_radius_m: float | None = Field(None, allow_inf_nan=True)  # .inf: a straight end
+    end_radius_m: float | None = Field(None, allow_inf_nan=True)
 
     @model_validator(mode="after")
     def _radius(self) -> "HorizontalElement":
@@ -76,7 +72,7 @@ class HorizontalElement(_Strict):
         return self
 
 
-class Horizontal(_Strict):
+class Horizontal(StrictModel):
     """Start point in ``n`` [m], start heading [deg, from east towards north] and the elements."""
 
     start_e_m: float = 0.0
@@ -85,7 +81,7 @@ class Horizontal(_Strict):
     elements: list[HorizontalElement] = Field(min_length=1)
 
 
-class Pvi(_Strict):
+class Pvi(StrictModel):
     """A vertical point of intersection: chainage [m], height [m], vertical curve length or radius [m]."""
 
     chainage_m: float
@@ -94,13 +90,13 @@ class Pvi(_Strict):
     radius_m: float | None = Field(None, gt=0)
 
 
-class Vertical(_Strict):
+class Vertical(StrictModel):
     """PVIs in increasing chainage; the first and last carry no curve."""
 
     pvis: list[Pvi] = Field(min_length=1)
 
 
-class CantStation(_Strict):
+class CantStation(StrictModel):
     """Applied cant ``cant_mm`` (>= 0) raising ``raised_rail`` at design chainage ``chainage_m``."""
 
     chainage_m: float = Field(allow_inf_nan=False)
@@ -108,7 +104,7 @@ class CantStation(_Strict):
     raised_rail: Literal["left", "right"]
 
 
-class AlignmentConfig(_Strict):
+class AlignmentConfig(StrictModel):
     """A whole design alignment. Cant comes either from the arcs' ``cant_mm`` (ramped over the
     clothoids) or from ``cant_stations`` (linear between stations in increasing chainage, constant
     before the first and after the last), not both."""
@@ -203,13 +199,6 @@ class DesignAlignment:
         except ValidationError as exc:
             raise config_error_from_validation(exc, source) from None
         return cls(cfg)
-
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> "DesignAlignment":
-        """Load an alignment YAML file."""
-        from ..yamlio import load_yaml
-        p = Path(path)
-        return cls.from_dict(load_yaml(p), str(p))
 
     def _locate(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if np.any(~np.isfinite(s)) or np.any(s < -1e-9) or np.any(s > self.length_m + 1e-9):

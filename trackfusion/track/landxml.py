@@ -87,12 +87,9 @@ def _local(tag: str) -> str:
     return tag.rsplit("}", 1)[-1]
 
 
-def _parse(path: Path) -> _Doc:
-    """Elements with their line numbers (namespaces reduced to ``{uri}local`` tags)."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"{path}: unreadable design alignment ({exc.strerror or exc})") from None
+def _parse(data: bytes, path: Path) -> _Doc:
+    """Elements of the file's bytes with their line numbers (namespaces reduced to ``{uri}local``
+    tags); ``path`` names the file in messages."""
     builder, lines = TreeBuilder(), {}
     parser = expat.ParserCreate(namespace_separator="}")
 
@@ -503,10 +500,12 @@ def _cant(doc: _Doc, alignment: Element, f: float, f_cant: float, sta0: float, l
 
 # --- the file ------------------------------------------------------------------------------------
 
-def read_landxml(path: str | Path) -> AlignmentConfig:
-    """The design alignment of a LandXML 1.2 file (module docstring) as an :class:`AlignmentConfig`;
-    raises :class:`ConfigError` (one line: file, line, element) on anything it cannot read."""
-    doc = _parse(Path(path))
+def parse_landxml(data: bytes, path: str | Path) -> AlignmentConfig:
+    """The design alignment of a LandXML 1.2 file's bytes (module docstring) as an
+    :class:`AlignmentConfig`; ``path`` names the file in messages. Raises :class:`ConfigError`
+    (one line: file, line, element) on anything it cannot read. The file is read at the I/O
+    boundary (:func:`trackfusion.geometry_inputs.read_landxml`)."""
+    doc = _parse(data, Path(path))
     f, f_cant = _units(doc)
     _check_frame(doc)
     alignments = _descendants(doc.root, "Alignment")

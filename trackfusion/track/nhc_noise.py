@@ -60,7 +60,7 @@ def nhc_velocity_rms_mps(speed_mps: float, wheelbase_m: float, spectrum: str = "
     """RMS lateral and vertical velocity [m/s] of ``v``'s origin of a rigid trolley.
 
     speed_mps: trolley speed [m/s]; wheelbase_m [m]; ``spectrum``, band and ``scale`` as in
-    :class:`trackfusion.track.irregularity.PsdConfig` (``scale`` multiplies the amplitude);
+    :class:`trackfusion.simulation.irregularity.PsdConfig` (``scale`` multiplies the amplitude);
     ``components``: the German components present (default all four).
     Returns ``{"lateral": ..., "vertical": ...}``.
     """

@@ -17,24 +17,21 @@ from __future__ import annotations
 from typing import Callable, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.interpolate import CubicSpline
 from scipy.signal import lfilter
 
 from .. import geodesy
 from ..errors import SimulationError
 from ..registration.polar import DEFAULT_REFRACTION_K, StationSetup, n_to_polar
+from ..sensors.types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
+from ..strict import StrictModel
 from . import noise
-from .types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
 
 ARCSEC = np.pi / 180.0 / 3600.0  #: one arcsecond [rad]
 
 
-class _Spec(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Interval(_Spec):
+class Interval(StrictModel):
     """A time interval [start_s, start_s + duration_s) on the IMU clock [s]."""
 
     start_s: float
@@ -75,7 +72,7 @@ def _step_s(t: np.ndarray, rate_hz: float) -> float:
 
 # --- odometer ---------------------------------------------------------------------------------
 
-class OdometerSpec(_Spec):
+class OdometerSpec(StrictModel):
     """Wheel encoder on the measuring wheel.
 
     ``scale_error_ppm`` 1-sigma of the constant scale-factor error (drawn once);
@@ -171,7 +168,7 @@ def simulate_odometer(t_s: np.ndarray, wheel_distance_m: np.ndarray, spec: Odome
 
 # --- GNSS ---------------------------------------------------------------------------------------
 
-class GnssSpec(_Spec):
+class GnssSpec(StrictModel):
     """RTK GNSS (2 cm + 1 ppm class, seed 002).
 
     Per axis (horizontal: east and north; vertical): white noise ``sigma_*_mm``; a first-order
@@ -277,7 +274,7 @@ class MisLock(Interval):
     target_n_m: tuple[float, float, float]
 
 
-class StationConfig(_Spec):
+class StationConfig(StrictModel):
     """One station: ``pos_n_m`` instrument point (tilting axis) in ``n`` [m], or the ground mark when
     ``instrument_height_m`` > 0; nominal ``orientation_deg`` (azimuth of the horizontal circle's zero,
     clockwise from north); ``blocked`` intervals (IMU clock) with the line of sight obstructed; and
@@ -298,7 +295,7 @@ class StationConfig(_Spec):
     mislocks: list[MisLock] = []
 
 
-class Handover(_Spec):
+class Handover(StrictModel):
     """From the moment the trolley crosses ``at_chainage_m`` (after the previous hand-over), the prism
     faces ``station`` (seed 003 figure 3, "mirror rotating location"). The first entry has no
     chainage: the station faced at the start."""
@@ -307,7 +304,7 @@ class Handover(_Spec):
     at_chainage_m: float | None = None
 
 
-class TotalStationSpec(_Spec):
+class TotalStationSpec(StrictModel):
     """Robotic total stations tracking the trolley prism (seed 003 section 2.1.1: Leica TS60, 0.5"
     angles, 3 mm + 1.5 ppm distances, about 10 Hz, vertical axes within 4" of each other, 2" set-up).
 
@@ -517,7 +514,7 @@ def _rms(x: np.ndarray) -> float:
 
 # --- inclinometer and gauge ---------------------------------------------------------------------------
 
-class InclinometerSpec(_Spec):
+class InclinometerSpec(StrictModel):
     """Two-axis inclinometer (seed 004: good static, slow dynamic response): first-order lag
     ``time_constant_s`` (0: none), white noise ``sigma_arcsec``, constant bias per axis drawn with
     1-sigma ``bias_arcsec``."""
@@ -555,7 +552,7 @@ def simulate_inclinometer(t_s, roll_rad, pitch_rad, spec: InclinometerSpec, rng:
     return InclinometerData(t, out[0], out[1]), {"ideal": False, "bias_rad": bias.tolist()}
 
 
-class GaugeSpec(_Spec):
+class GaugeSpec(StrictModel):
     """Gauge sensor: white noise ``sigma_mm`` and a constant bias drawn with 1-sigma ``bias_mm``."""
 
     rate_hz: float = Field(50.0, gt=0)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors_series import COMPONENTS
+from ..evaluation.errors_series import COMPONENTS
 
 
 def relative_accuracy_figure(result, title: str | None = None):
