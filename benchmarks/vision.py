@@ -46,15 +46,18 @@ import numpy as np
 from trackfusion.simulation.camera_laser import (StripeLook, default_units, frame_images, section_points_v,
                                                  simulate_run, stripe_curve_px)
 from trackfusion.simulation.vision_calibration import write_calibration_set
-from trackfusion.simulation.vision_imu import DesignCurve, ImuSpec, imu_signals
+from trackfusion.simulation.vision_imu import DesignCurve, ImuSpec, encoder_chainage_m, imu_signals
 from trackfusion.track.rail_profile import rail_head, sample_unworn_mm, segment_normals
 from trackfusion.vision.calibration import calibrate_folder
 from trackfusion.vision.madgwick import madgwick_roll
 from trackfusion.vision.measure import measure_run
+from trackfusion.vision.relative_motion import (band_trace, design_along, rail_centre_trace, relative_trajectory,
+                                                zero_phase_roll)
 
 HEAD = rail_head("60E1")
 HALF_M = 1.435 / 2 + HEAD.gauge_point_mm()[0] / 1000
 LEAD_S = 60.0
+TAIL_S = 10.0
 MADGWICK_BETA = 0.002
 WEAR = {"start_m": 30.0, "end_m": 100.0, "vertical_mm": 1.0, "side_mm": 2.0, "side_rail": "left"}
 
@@ -96,6 +99,29 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
 
 
+def inertial_figures(units: dict, images: dict, run, full_run, filmed: slice, enc: np.ndarray,
+                     roll_rel: np.ndarray, r_t: np.ndarray) -> dict:
+    """Gauge, cross-level with a roll source, and the D1 alignment / vertical profile of the
+    centreline (eq. 40: vision origins + the relative trajectory ``r_t`` of that roll)."""
+    mm = measure_run(units, HEAD, images, roll_rel[filmed], workers=2)
+    # r band-passed over the whole IMU record, the vision part over the filmed stretch
+    s_v = enc[filmed]
+    keep = (s_v > s_v[0] + 12.5) & (s_v < s_v[-1] - 12.5)
+    s_true = full_run.s_m
+    centre = rail_centre_trace(mm.pose["left"][:, :2], mm.pose["right"][:, :2], roll_rel[filmed])
+    out = {"roll_rms_error_deg": float(np.degrees(np.sqrt(np.mean((roll_rel[filmed] - run.roll_rel_rad) ** 2)))),
+           "gauge_rms_error_mm": rms((mm.gauge_m - run.gauge_m) * 1e3),
+           "cross_level_rms_error_mm": rms((mm.cross_level_m - run.cross_level_m) * 1e3)}
+    for k, (name, truth) in enumerate((("alignment", full_run.alignment_m),
+                                        ("vertical_profile", full_run.vertical_profile_m))):
+        est = band_trace(enc, r_t[:, k])[filmed] + band_trace(s_v, centre[:, k])
+        ref = band_trace(s_true, truth)[filmed]
+        err = (est - ref)[keep] * 1e3
+        out[f"{name}_d1_rms_error_mm"] = rms(err)
+        out[f"{name}_d1_truth_rms_mm"] = rms(ref[keep] * 1e3)
+    return out
+
+
 def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     sims = default_units(HALF_M)
     t0 = time.perf_counter()
@@ -111,19 +137,26 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     lead = int(LEAD_S * 250)
     s_lead = speed_mps * lead / 250
     wear = {**WEAR, "start_m": WEAR["start_m"] + s_lead, "end_m": WEAR["end_m"] + s_lead}
-    full_run = simulate_run(HEAD, n_frames=lead + n_frames, speed_mps=speed_mps, wear=wear, seed=seed)
+    tail = int(TAIL_S * 250)
+    full_run = simulate_run(HEAD, n_frames=lead + n_frames + tail, speed_mps=speed_mps, wear=wear, seed=seed)
     curve = DesignCurve(transition_start_m=s_lead + 20.0)
-    gyro, accel = imu_signals(full_run.t_s, full_run.s_m, full_run.y_rel_m, full_run.z_rel_m,
+    # the measuring frame's position relative to the design track: the track's alignment and
+    # vertical profile plus the bogie's motion relative to the rails
+    gyro, accel = imu_signals(full_run.t_s, full_run.s_m, full_run.alignment_m + full_run.y_rel_m,
+                              full_run.vertical_profile_m + full_run.z_rel_m,
                               full_run.roll_rel_rad, curve, ImuSpec(), np.random.default_rng(7 + seed))
-    rho, cant = curve.at(full_run.s_m)
-    speed = np.gradient(full_run.s_m, full_run.t_s)
-    madgwick = {}
+    enc = encoder_chainage_m(full_run.s_m, np.random.default_rng(11 + seed))
+    rho, cant = curve.at(enc)
+    design = design_along(enc, full_run.t_s, rho, cant)
+    rolls = {"zero_phase": zero_phase_roll(full_run.t_s, gyro, accel, design["speed_mps"], rho) - cant}
     for name, corrected in (("seed_corrected", True), ("plain", False)):
-        roll = madgwick_roll(full_run.t_s, gyro, accel, speed, rho, beta=MADGWICK_BETA,
+        roll = madgwick_roll(full_run.t_s, gyro, accel, design["speed_mps"], rho, beta=MADGWICK_BETA,
                              roll0_rad=float(np.arctan2(accel[0, 1], accel[0, 2])),
                              correct_track_acceleration=corrected)
-        madgwick[name] = (roll - cant)[lead:]
-    run = full_run.frames(lead)
+        rolls[name] = roll - cant
+    traces = {name: relative_trajectory(full_run.t_s, accel, roll, design) for name, roll in rolls.items()}
+    filmed = slice(lead, lead + n_frames)
+    run = full_run.frames(lead, lead + n_frames)
     images, flags = {}, {}
     for i, side in enumerate(("left", "right")):
         images[side], flags[side] = frame_images(sims[side], HEAD, run, StripeLook(), seed=1000 * seed + i)
@@ -142,12 +175,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     roll_err = rng.normal(0.0, np.radians(0.01), n_frames)
     m_roll = measure_run(units, HEAD, images, run.roll_rel_rad + roll_err, workers=2)
 
-    baseline = {}
-    for name, roll_rel in madgwick.items():
-        mm = measure_run(units, HEAD, images, roll_rel, workers=2)
-        baseline[name] = {"roll_rms_error_deg": float(np.degrees(np.sqrt(np.mean((roll_rel - run.roll_rel_rad) ** 2)))),
-                          "gauge_rms_error_mm": rms((mm.gauge_m - run.gauge_m) * 1e3),
-                          "cross_level_rms_error_mm": rms((mm.cross_level_m - run.cross_level_m) * 1e3)}
+    inertial = {name: inertial_figures(units, images, run, full_run, filmed, enc, rolls[name], traces[name])
+                for name in rolls}
 
     eg = (m.gauge_m - run.gauge_m) * 1e3
     ec = (m.cross_level_m - run.cross_level_m) * 1e3
@@ -173,7 +202,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
         "with_roll_error_0p01deg": {"gauge_rms_error_mm": rms((m_roll.gauge_m - run.gauge_m) * 1e3),
                                     "cross_level_rms_error_mm": rms((m_roll.cross_level_m - run.cross_level_m) * 1e3)},
         "wear_worn_stretch": wear_fig,
-        "madgwick_roll_baseline": baseline,
+        "ours_zero_phase_roll": inertial["zero_phase"],
+        "madgwick_roll_baseline": {k: inertial[k] for k in ("seed_corrected", "plain")},
         "faults": {"frames_listed": len(listed), "by_reason": dict(Counter(r for _, _, r in m.faults)),
                    "frames_without_stripe": len(no_stripe),
                    "without_stripe_all_listed": bool(set(no_stripe) <= listed),
