@@ -51,8 +51,8 @@ from trackfusion.track.rail_profile import rail_head, sample_unworn_mm, segment_
 from trackfusion.vision.calibration import calibrate_folder
 from trackfusion.vision.madgwick import madgwick_roll
 from trackfusion.vision.measure import measure_run
-from trackfusion.vision.relative_motion import (band_trace, design_along, rail_centre_trace, relative_trajectory,
-                                                zero_phase_roll)
+from trackfusion.vision.relative_motion import (band_trace, design_along, design_chainage_m, rail_centre_trace,
+                                                relative_trajectory, zero_phase_roll)
 
 HEAD = rail_head("60E1")
 HALF_M = 1.435 / 2 + HEAD.gauge_point_mm()[0] / 1000
@@ -145,7 +145,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     gyro, accel = imu_signals(full_run.t_s, full_run.s_m, full_run.alignment_m + full_run.y_rel_m,
                               full_run.vertical_profile_m + full_run.z_rel_m,
                               full_run.roll_rel_rad, curve, ImuSpec(), np.random.default_rng(7 + seed))
-    enc = encoder_chainage_m(full_run.s_m, np.random.default_rng(11 + seed))
+    enc = design_chainage_m(full_run.t_s, encoder_chainage_m(full_run.s_m, np.random.default_rng(11 + seed)),
+                            gyro, accel, curve.at)
     rho, cant = curve.at(enc)
     design = design_along(enc, full_run.t_s, rho, cant)
     rolls = {"zero_phase": zero_phase_roll(full_run.t_s, gyro, accel, design["speed_mps"], rho) - cant}
@@ -215,6 +216,45 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     }
 
 
+def summary(runs: list[dict]) -> dict:
+    """The worst seed against each target: ``worst``, ``targets``, ``meets``."""
+    cal = [c for r in runs for c in r["calibration"].values()]
+    ours = [r["ours_zero_phase_roll"] for r in runs]
+    seed_b = [r["madgwick_roll_baseline"]["seed_corrected"] for r in runs]
+    worst = {
+        "gauge_rms_error_mm_true_roll": max(r["gauge_rms_error_mm"] for r in runs),
+        "cross_level_rms_error_mm_true_roll": max(r["cross_level_rms_error_mm"] for r in runs),
+        "cross_level_rms_error_mm_with_roll_error_0p01deg": max(
+            r["with_roll_error_0p01deg"]["cross_level_rms_error_mm"] for r in runs),
+        "roll_rms_error_deg": max(o["roll_rms_error_deg"] for o in ours),
+        "gauge_rms_error_mm": max(o["gauge_rms_error_mm"] for o in ours),
+        "cross_level_rms_error_mm": max(o["cross_level_rms_error_mm"] for o in ours),
+        "alignment_d1_rms_error_mm": max(o["alignment_d1_rms_error_mm"] for o in ours),
+        "vertical_profile_d1_rms_error_mm": max(o["vertical_profile_d1_rms_error_mm"] for o in ours),
+        "seed_baseline_roll_rms_error_deg": max(o["roll_rms_error_deg"] for o in seed_b),
+        "seed_baseline_cross_level_rms_error_mm": max(o["cross_level_rms_error_mm"] for o in seed_b),
+        "seed_baseline_gauge_rms_error_mm": max(o["gauge_rms_error_mm"] for o in seed_b),
+        "seed_baseline_alignment_d1_rms_error_mm": max(o["alignment_d1_rms_error_mm"] for o in seed_b),
+        "seed_baseline_vertical_profile_d1_rms_error_mm": max(o["vertical_profile_d1_rms_error_mm"] for o in seed_b),
+        "cross_level_rms_error_mm_madgwick_plain": max(
+            r["madgwick_roll_baseline"]["plain"]["cross_level_rms_error_mm"] for r in runs),
+        "wear_max_abs_error_mm": max(max(w["vertical_max_abs_mm"], w["side_max_abs_mm"])
+                                     for r in runs for w in r["wear_worn_stretch"].values()),
+        "wear_max_abs_error_1m_mean_mm": max(max(w["vertical_max_abs_1m_mean_mm"], w["side_max_abs_1m_mean_mm"])
+                                             for r in runs for w in r["wear_worn_stretch"].values()),
+        "reprojection_rms_px": max(c["reprojection_rms_px"] for c in cal),
+        "laser_plane_error_at_rail_mm": max(c["laser_plane_error_at_rail_mm"] for c in cal),
+        "frames_per_s_two_processes": min(r["frames_per_s_two_processes"] for r in runs),
+        "frames_per_cpu_s": min(r["frames_per_cpu_s"] for r in runs),
+    }
+    targets = {"gauge_rms_error_mm": 0.3, "cross_level_rms_error_mm": 0.3, "alignment_d1_rms_error_mm": 0.5,
+               "vertical_profile_d1_rms_error_mm": 0.5, "wear_max_abs_error_1m_mean_mm": 0.2,
+               "wear_max_abs_error_mm": 0.2, "reprojection_rms_px": 0.1, "laser_plane_error_at_rail_mm": 0.05}
+    verdict = {k: worst[k] <= v for k, v in targets.items()}
+    verdict["frames_per_s_two_processes"] = worst["frames_per_s_two_processes"] >= 500
+    return {"worst": worst, "targets": {**targets, "frames_per_s_two_processes": 500}, "meets": verdict}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
@@ -229,34 +269,10 @@ def main() -> None:
             runs.append(r)
             print(json.dumps({k: r[k] for k in ("seed", "gauge_rms_error_mm", "cross_level_rms_error_mm",
                                                 "frames_per_s_one_process", "frames_per_s_two_processes")}))
-    cal = [c for r in runs for c in r["calibration"].values()]
-    worst = {
-        "gauge_rms_error_mm": max(r["gauge_rms_error_mm"] for r in runs),
-        "cross_level_rms_error_mm": max(r["cross_level_rms_error_mm"] for r in runs),
-        "cross_level_rms_error_mm_with_roll_error_0p01deg": max(
-            r["with_roll_error_0p01deg"]["cross_level_rms_error_mm"] for r in runs),
-        "cross_level_rms_error_mm_madgwick_seed_corrected": max(
-            r["madgwick_roll_baseline"]["seed_corrected"]["cross_level_rms_error_mm"] for r in runs),
-        "cross_level_rms_error_mm_madgwick_plain": max(
-            r["madgwick_roll_baseline"]["plain"]["cross_level_rms_error_mm"] for r in runs),
-        "wear_max_abs_error_mm": max(max(w["vertical_max_abs_mm"], w["side_max_abs_mm"])
-                                     for r in runs for w in r["wear_worn_stretch"].values()),
-        "wear_max_abs_error_1m_mean_mm": max(max(w["vertical_max_abs_1m_mean_mm"], w["side_max_abs_1m_mean_mm"])
-                                             for r in runs for w in r["wear_worn_stretch"].values()),
-        "reprojection_rms_px": max(c["reprojection_rms_px"] for c in cal),
-        "laser_plane_error_at_rail_mm": max(c["laser_plane_error_at_rail_mm"] for c in cal),
-        "frames_per_s_two_processes": min(r["frames_per_s_two_processes"] for r in runs),
-        "frames_per_cpu_s": min(r["frames_per_cpu_s"] for r in runs),
-    }
-    targets = {"gauge_rms_error_mm": 0.3, "cross_level_rms_error_mm": 0.3, "wear_max_abs_error_1m_mean_mm": 0.2,
-               "wear_max_abs_error_mm": 0.2, "reprojection_rms_px": 0.1, "laser_plane_error_at_rail_mm": 0.05}
-    verdict = {k: worst[k] <= v for k, v in targets.items()}
-    verdict["frames_per_s_two_processes"] = worst["frames_per_s_two_processes"] >= 500
-    doc = {"worst": worst, "targets": {**targets, "frames_per_s_two_processes": 500}, "meets": verdict,
-           "load_average": os.getloadavg(), "cpus": os.cpu_count(), "runs": runs}
+    doc = {**summary(runs), "load_average": os.getloadavg(), "cpus": os.cpu_count(), "runs": runs}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=2))
-    print(json.dumps({"worst": worst, "meets": verdict}, indent=2))
+    print(json.dumps({"worst": doc["worst"], "meets": doc["meets"]}, indent=2))
 
 
 if __name__ == "__main__":

@@ -7,7 +7,10 @@ z up), ``t`` the design track frame at the frame's chainage (canted by the desig
 ``v`` in ``t`` (eq. 46's ``r^{tgms}``) and ``phi`` [rad] the roll of ``v`` relative to ``t``.
 
 Two estimates of ``(phi, r)`` from the same IMU (gyro, specific force), encoder chainage and the
-track design (horizontal curvature and cant against chainage, from the track preprocessor):
+track design (horizontal curvature and cant against chainage, from the track preprocessor). The
+design is read at the encoder's chainage shifted onto the design's by curvature matching
+(:func:`design_chainage_m`): in a transition the cant changes by about 0.1 deg per metre, so a
+metre of odometer drift would be a 0.1 deg roll error (2.5 mm of cross-level).
 
 * the seed's: :func:`~trackfusion.vision.madgwick.madgwick_roll` (a causal filter) minus the
   design cant, and :func:`relative_trajectory` of its roll (eq. 46 integrated forward);
@@ -45,6 +48,51 @@ def design_along(s_m: np.ndarray, t_s: np.ndarray, curvature_h_per_m: np.ndarray
         twist = np.where(np.abs(ds) > 0, np.gradient(cant_rad) / ds, 0.0)
     return {"speed_mps": speed, "vdot_mps2": np.gradient(speed, t_s), "rho_h_per_m": curvature_h_per_m,
             "cant_rad": cant_rad, "twist_rad_per_m": twist}
+
+
+def measured_curvature_per_m(gyro_b: np.ndarray, roll_rad: np.ndarray, speed_mps: np.ndarray,
+                             min_speed_mps: float = 1.0) -> np.ndarray:
+    """The horizontal curvature of the measuring frame's path (seed eq. 48, ``omega_z / V``) with
+    the body's yaw rate turned to the vertical by its roll: ``(omega_y sin phi + omega_z cos phi)
+    / V`` [1/m] (N,); NaN below ``min_speed_mps``."""
+    yaw_rate = gyro_b[:, 1] * np.sin(roll_rad) + gyro_b[:, 2] * np.cos(roll_rad)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(speed_mps >= min_speed_mps, yaw_rate / speed_mps, np.nan)
+
+
+def chainage_offset_m(s_m: np.ndarray, curvature_per_m: np.ndarray, design_curvature, search_m: float = 10.0,
+                      step_m: float = 0.01) -> float:
+    """The shift [m] to add to the encoder's chainage ``s_m`` (N,) so that the measured
+    curvature (N,) [1/m] best matches the design's (``design_curvature(s)`` [1/m], a callable of
+    chainage): the seed's curvature matching (section 8, eqs. 49-51: the squared difference of
+    the two curvature functions) over the whole record, searched within ``+-search_m`` on a
+    ``step_m`` grid and refined by a parabola through the best three. A record whose design has
+    no curvature change within it cannot be matched: the shift is then 0 (``VisionError`` is
+    not raised: the encoder's chainage is used as it is)."""
+    ok = np.isfinite(curvature_per_m)
+    s, k = s_m[ok], curvature_per_m[ok]
+    shifts = np.arange(-search_m, search_m + step_m / 2, step_m)
+    base = design_curvature(s)
+    if np.ptp(base) == 0 and np.ptp(design_curvature(s + search_m)) == 0:
+        return 0.0
+    cost = np.array([np.sum((k - design_curvature(s + d)) ** 2) for d in shifts])
+    i = int(np.clip(np.argmin(cost), 1, shifts.size - 2))
+    c0, c1, c2 = cost[i - 1:i + 2]
+    den = c0 - 2 * c1 + c2
+    return float(shifts[i] + (0.5 * step_m * (c0 - c2) / den if den > 0 else 0.0))
+
+
+def design_chainage_m(t_s: np.ndarray, s_enc_m: np.ndarray, gyro_b: np.ndarray, accel_b: np.ndarray,
+                      design_at) -> np.ndarray:
+    """The encoder's chainage (N,) [m] shifted onto the design's by :func:`chainage_offset_m`:
+    ``design_at(s)`` returns the design's horizontal curvature [1/m] and cant angle [rad] at
+    chainages ``s``; the roll that turns the yaw rate to the vertical is
+    :func:`zero_phase_roll` at the encoder's chainage."""
+    rho, _ = design_at(s_enc_m)
+    speed = np.gradient(s_enc_m, t_s)
+    roll = zero_phase_roll(t_s, gyro_b, accel_b, speed, rho)
+    kappa = measured_curvature_per_m(gyro_b, roll, speed)
+    return s_enc_m + chainage_offset_m(s_enc_m, kappa, lambda s: design_at(s)[0])
 
 
 def tilt_roll_rad(accel_b: np.ndarray, speed_mps: np.ndarray, curvature_h_per_m: np.ndarray) -> np.ndarray:
