@@ -107,3 +107,27 @@ def test_curvature_matching_recovers_the_odometer_offset(curve_run):
     mid = run.s_m.size // 2
     assert abs(s[mid] - run.s_m[mid]) < 0.08, s[mid] - run.s_m[mid]
     assert abs(enc[mid] - run.s_m[mid]) > 1.7
+
+
+def test_wear_near_glare_is_a_fault_gauge_stays():
+    """A saturated glint beside the left stripe of one noise-free frame (at the image's left
+    end, off the wear windows): that rail's wear is NaN and listed as ``glare_near_stripe``;
+    the frame's gauge and the other frames' wear are numbers."""
+    from trackfusion.simulation.camera_laser import StripeLook, default_units, expose, frame_images
+    from trackfusion.vision.measure import measure_frames
+
+    sims = default_units(1.435 / 2 + HEAD.gauge_point_mm()[0] / 1000)
+    run = simulate_run(HEAD, n_frames=3, seed=2)
+    imgs = {side: frame_images(sims[side], HEAD, run, StripeLook(), seed=5, noise=False)[0]
+            for side in ("left", "right")}
+    cam = sims["left"].unit.camera
+    rows = np.nanmedian(np.argmax(imgs["left"][1], axis=0)[:60])
+    yy, xx = np.mgrid[0:cam.height_px, 0:cam.width_px]
+    glint = 600.0 * np.exp(-0.5 * (((xx - 10) / 12) ** 2 + ((yy - rows - 20) / 5) ** 2))
+    imgs["left"][1] = expose(imgs["left"][1].astype(np.float32) - StripeLook().ambient_dn + glint,
+                             StripeLook(blur_sigma_px=0.0), None)
+    m = measure_frames({k: s.unit for k, s in sims.items()}, HEAD, imgs, run.roll_rel_rad)
+    assert m.faults == [(1, "left", "glare_near_stripe")]
+    assert np.isnan(m.vertical_wear_mm["left"][1]) and np.isnan(m.side_wear_mm["left"][1])
+    assert np.isfinite(m.gauge_m).all() and np.isfinite(m.vertical_wear_mm["right"]).all()
+    assert np.isfinite(m.vertical_wear_mm["left"][[0, 2]]).all()
