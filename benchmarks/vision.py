@@ -13,15 +13,19 @@ left rail), glare on 2 % and missing stripes on 1 % of the frames -- and measure
   calibrated plane's distance from true rail section points, in the measuring frame; target
   <= 0.05) and the whole reconstruction's error there;
 - gauge RMS error [mm] (target <= 0.3) and cross-level RMS error [mm] (target <= 0.3) over the
-  frames not listed as faults; the roll of the measuring frame relative to the track (eq. 37's
-  ``phi^{t,tgms}``) is the true one (the inertial part that would give it is not built here) and
-  again with a 0.01 deg rms error on it, to show what the roll source must deliver;
+  frames not listed as faults, with the roll of the measuring frame relative to the track (eq.
+  37's ``phi^{t,tgms}``) from the IMU (``trackfusion.vision.relative_motion.zero_phase_roll``,
+  the encoder's chainage matched onto the design); the vision alone with the true roll, and
+  with a 0.01 deg rms error on it, to show what the roll source must deliver;
+- the centreline's alignment and vertical profile (eq. 40: profile origins + eq. 46's relative
+  trajectory), D1 band (3-25 m), RMS error [mm] (target <= 0.5), 12.5 m from the stretch's ends;
 - wear on the worn stretch (ramps left out): largest vertical and side wear error [mm] of a
   single frame and of 1 m means (target within 0.2);
 - the seed's baseline for the roll: Madgwick's filter on the measuring frame's IMU (tactical
   MEMS datasheet errors, 60 s lead-in, a transition into an 800 m curve with 100 mm cant in the
   stretch), with the seed's correction for the track's acceleration (eq. 53) and without it
-  (eq. 52), its roll minus the design cant used in eq. 37: roll, gauge and cross-level errors;
+  (eq. 52), its roll minus the design cant used in eq. 37 and in eq. 46 (integrated forward):
+  roll, gauge, cross-level, alignment and vertical-profile errors on the same data;
 - faults: frames listed, by reason, against the frames rendered without stripe;
 - speed: frames per second (both cameras) of the per-frame processing in one process and on two
   forked processes (target >= 500 on 2 cores), and frames per CPU-second of the one-process run
