@@ -210,9 +210,12 @@ def resonant_noise(n: int, rate_hz: float, f0_hz: float, zeta: float, rms: float
 @dataclass(frozen=True)
 class VisionRun:
     """Truth of a simulated run of ``F`` frames: time [s], chainage [m], relative motion of the
-    measuring frame (lateral, vertical [m], roll [rad]), track gauge variation and cross-level of
-    the profile origins [m], wear per rail [mm], true gauge at 14 mm [m] and cross-level of the
-    profile origins [m] per frame, and each rail's profile pose in the vehicle frame."""
+    measuring frame to the actual track (lateral, vertical [m], roll [rad]), wear per rail [mm],
+    true gauge at 14 mm [m] and cross-level of the profile origins [m] per frame, each rail's
+    profile pose in the vehicle frame, and the track centreline's alignment and vertical profile
+    [m] (the mean of the two profile origins, relative to the design track frame: eq. 40's
+    ``al``, ``vp``). The measuring frame's position relative to the design track frame (eq. 46's
+    ``r^{tgms}``) is ``(alignment_m + y_rel_m, vertical_profile_m + z_rel_m)``."""
 
     t_s: np.ndarray
     s_m: np.ndarray
@@ -225,10 +228,12 @@ class VisionRun:
     cross_level_m: np.ndarray
     origin_v_m: dict
     roll_v_rad: dict
+    alignment_m: np.ndarray
+    vertical_profile_m: np.ndarray
 
-    def frames(self, first: int) -> "VisionRun":
-        """The run from frame ``first`` on (e.g. after an IMU filter's lead-in)."""
-        cut = lambda x: {k: v[first:] for k, v in x.items()} if isinstance(x, dict) else x[first:]  # noqa: E731
+    def frames(self, first: int, stop: int | None = None) -> "VisionRun":
+        """The run's frames ``first`` to ``stop`` (e.g. after an IMU filter's lead-in)."""
+        cut = lambda x: {k: v[first:stop] for k, v in x.items()} if isinstance(x, dict) else x[first:stop]  # noqa: E731
         return VisionRun(*(cut(getattr(self, f.name)) for f in fields(self)))
 
 
@@ -246,11 +251,13 @@ def _track_series(s_m: np.ndarray, rms: float, corr_m: float, rng: np.random.Gen
 def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate_hz: float = 250.0,
                  gauge_nominal_m: float = 1.435, lateral_peak_m: float = 5e-3,
                  vertical_peak_m: float = 10e-3, roll_peak_rad: float = np.radians(0.5),
-                 wear: dict | None = None, seed: int = 1) -> VisionRun:
+                 wear: dict | None = None, alignment_rms_m: float = 1.5e-3, seed: int = 1) -> VisionRun:
     """Truth of a run: the measuring frame on the bogie moving relative to the track (lateral
     mode at 1.2 Hz, bounce at 3.5 Hz, roll at 1.0 Hz, each with a peak about 2.5 rms), a track
-    with gauge variation (rms 1 mm) and cross-level (rms 1.5 mm) of wavelengths above ~5 m, and
-    optional wear: ``wear = {"start_m", "end_m", "vertical_mm", "side_mm", "side_rail"}``
+    with gauge variation (rms 1 mm) and cross-level (rms 1.5 mm) of wavelengths above ~5 m, a
+    centreline alignment and vertical profile (rms ``alignment_rms_m`` each, wavelengths above
+    ~2 m; the measuring frame follows them, the rails carry them), and optional wear:
+    ``wear = {"start_m", "end_m", "vertical_mm", "side_mm", "side_rail"}``
     (both rails lose the vertical wear, ``side_rail`` the side wear; 5 m ramps)."""
     if n_frames < 2 or speed_mps <= 0 or rate_hz <= 0:
         raise SimulationError("vision run needs n_frames >= 2, speed > 0 and a frame rate > 0")
@@ -262,6 +269,8 @@ def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate
     roll_rel = resonant_noise(n_frames, rate_hz, 1.0, 0.2, roll_peak_rad / 2.5, rng)
     gv = _track_series(s, 1e-3, 5.0, rng)
     cl = _track_series(s, 1.5e-3, 5.0, rng)
+    al = _track_series(s, alignment_rms_m, 2.0, rng)
+    vp = _track_series(s, alignment_rms_m, 2.0, rng)
     q_g = head.gauge_point_mm()[0] / 1000
     half = gauge_nominal_m / 2 + q_g
     vw = {k: np.zeros(n_frames) for k in SIDE_SIGN}
@@ -271,16 +280,16 @@ def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate
         for k in SIDE_SIGN:
             vw[k] = ramp * wear["vertical_mm"]
         sw[wear["side_rail"]] = ramp * wear["side_mm"]
-    origin_t = {"left": np.column_stack([half + gv / 2, cl / 2]),
-                "right": np.column_stack([-half - gv / 2, -cl / 2])}
+    origin_t = {"left": np.column_stack([half + gv / 2 + al, cl / 2 + vp]),
+                "right": np.column_stack([-half - gv / 2 + al, -cl / 2 + vp])}
     tilt = cl / (2 * half)
     roll_t = {k: -sgn * RAIL_INCLINATION_RAD + tilt for k, sgn in SIDE_SIGN.items()}
-    r = np.column_stack([y_rel, z_rel])
+    r = np.column_stack([al + y_rel, vp + z_rel])
     R_back = rot2(-roll_rel)                      # track -> vehicle
     origin_v = {k: np.einsum("fij,fj->fi", R_back, origin_t[k] - r) for k in SIDE_SIGN}
     roll_v = {k: roll_t[k] - roll_rel for k in SIDE_SIGN}
     gauge, cross = true_gauge_and_cross_level(head, origin_t, roll_t, vw, sw)
-    return VisionRun(t, s, y_rel, z_rel, roll_rel, vw, sw, gauge, cross, origin_v, roll_v)
+    return VisionRun(t, s, y_rel, z_rel, roll_rel, vw, sw, gauge, cross, origin_v, roll_v, al, vp)
 
 
 def true_gauge_and_cross_level(head: RailHead, origin_t: dict, roll_t: dict, vw: dict, sw: dict

@@ -85,3 +85,12 @@ def imu_signals(t_s: np.ndarray, s_m: np.ndarray, y_rel_m: np.ndarray, z_rel_m: 
         omega = omega + rng.normal(0, g_sd, omega.shape) + rng.normal(0, np.radians(spec.gyro_bias_deg_per_h) / 3600, 3)
         f_b = f_b + rng.normal(0, a_sd, f_b.shape) + rng.normal(0, spec.accel_bias_mg * 1e-3 * GRAVITY_MPS2, 3)
     return omega, f_b
+
+
+def encoder_chainage_m(s_m: np.ndarray, rng: np.random.Generator, scale_sd: float = 5e-4,
+                       tick_m: float = 1e-3) -> np.ndarray:
+    """An encoder's chainage [m] (N,) of the true chainage ``s_m`` (N,): a wheel-radius scale
+    error drawn with ``scale_sd`` (a calibrated wheel; the seed's odometry algorithm keeps it
+    there) and ticks of ``tick_m``."""
+    s = np.asarray(s_m, dtype=float)
+    return np.floor(s * (1.0 + rng.normal(0.0, scale_sd)) / tick_m) * tick_m

@@ -19,13 +19,16 @@ continuous runs along the line (:func:`continuous_segments`: glare islands go), 
 A frame whose stripe is missing (too few stripe columns), whose fit is poor (inlier rms or
 inlier count out of bounds), whose unworn field corner or gauge face is not seen (glare), or
 where a gauge point or wear window has too few points is a
-**fault**: it is listed with its reason and its figures are NaN, never numbers.
+**fault**: it is listed with its reason and its figures are NaN, never numbers. A rail whose
+stripe points lie near glare columns has its
+wear listed as a fault (``glare_near_stripe``) and NaN; its gauge and cross-level stay.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from ..errors import VisionError
@@ -43,7 +46,10 @@ class FaultLimits:
     head are not, so this is a count, not a share), fewer than ``min_window_points`` points in a
     gauge-point or wear window, fewer than ``min_side_inliers`` unworn points on the field side
     (q < -10 mm) or on the gauge face (q > 30 mm): those fix the pose of a worn head, and glare
-    can hide them."""
+    can hide them; wear (only) is a fault when stripe points lie within
+    ``wear_glare_margin_columns`` of the glare columns (the glint's faint tails beyond the glare
+    mask shift the points near it: the pose of a worn head, fixed by few unworn points, moves
+    by tenths of a millimetre)."""
 
     min_columns: int = 120
     min_side_inliers: int = 8
@@ -51,6 +57,7 @@ class FaultLimits:
     max_rms_mm: float = 0.12
     min_inliers: int = 40
     min_window_points: int = 5
+    wear_glare_margin_columns: int = 60
 
 
 @dataclass
@@ -73,9 +80,10 @@ class FrameMeasurements:
 
 
 def rail_points_mm(unit: CameraLaserUnit, images: np.ndarray, stripe: StripeSettings
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vehicle-frame ``(y, z)`` [mm] (F, W) of the stripe in each column and the valid mask."""
-    rows = stripe_centres(images, stripe)
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vehicle-frame ``(y, z)`` [mm] (F, W) of the stripe in each column, the valid mask and
+    the glare columns (F, W)."""
+    rows, glare = stripe_centres(images, stripe, with_glare=True)
     F, W = rows.shape
     cols = np.broadcast_to(np.arange(W, dtype=float), rows.shape)
     valid = np.isfinite(rows)
@@ -86,7 +94,18 @@ def rail_points_mm(unit: CameraLaserUnit, images: np.ndarray, stripe: StripeSett
         p_v = unit.pixels_to_vehicle(uv)
         y[valid], z[valid] = p_v[:, 1] * 1e3, p_v[:, 2] * 1e3
     valid = valid & np.isfinite(y)
-    return y, z, valid & continuous_segments(y, z, valid)
+    return y, z, valid & continuous_segments(y, z, valid), glare
+
+
+def near_glare(window: np.ndarray, glare: np.ndarray, columns: int) -> np.ndarray:
+    """Per frame (F,): whether a window's columns (``window`` (F, W) mask) lie within ``columns``
+    of a glare column (``glare`` (F, W)): a glint's faint tails outside the glare mask still
+    shift the stripe centres there by a few tenths of a millimetre."""
+    if not glare.any():
+        return np.zeros(len(window), bool)
+    k = np.ones((1, 2 * columns + 1), np.uint8)
+    near = cv2.dilate(glare.astype(np.uint8), k) > 0
+    return (window & near).any(axis=1)
 
 
 def continuous_segments(y: np.ndarray, z: np.ndarray, valid: np.ndarray, jump_mm: float = 1.5,
@@ -161,7 +180,7 @@ def gauge_face_y(y_g: np.ndarray, z: np.ndarray, mask: np.ndarray, level: np.nda
 def measure_rail(unit: CameraLaserUnit, head: RailHead, images: np.ndarray, initial_pose: np.ndarray,
                  stripe: StripeSettings = StripeSettings()) -> dict:
     """Points, fit and wear of one rail over a batch of frames (F, H, W)."""
-    y, z, valid = rail_points_mm(unit, images, stripe)
+    y, z, valid, glare = rail_points_mm(unit, images, stripe)
     fit = fit_profiles(head, y, z, valid, unit.side, initial_pose)
     q, zr = to_profile_frame(y, z, fit.pose, unit.side)
     # on the head: not outside the unworn profile beyond the noise (glare, reflections), and
@@ -169,13 +188,16 @@ def measure_rail(unit: CameraLaserUnit, head: RailHead, images: np.ndarray, init
     d = fit.residual_mm
     m = valid & (d <= 3.0 * fit.sigma_mm[:, None] + 0.02) & (d > -15.0)
     sig = fit.sigma_mm
-    vw, n_vw = masked_polyfit_at(q, zr, m & (np.abs(q) <= 2.0), np.zeros(len(q)), 1, sig)
+    crown = m & (np.abs(q) <= 2.0)
+    vw, n_vw = masked_polyfit_at(q, zr, crown, np.zeros(len(q)), 1, sig)
     level = np.full(len(q), -GAUGE_POINT_DEPTH_MM)
-    q_face, n_sw = masked_polyfit_at(zr, q, m & (q > 20.0) & (np.abs(zr - level[:, None]) <= 1.5), level, 2, sig)
+    face = m & (q > 20.0) & (np.abs(zr - level[:, None]) <= 1.5)
+    q_face, n_sw = masked_polyfit_at(zr, q, face, level, 2, sig)
     inl = fit.inliers
     coverage = np.minimum((inl & (q < -10.0)).sum(axis=1), (inl & (q > 30.0)).sum(axis=1))
     return {"y": y, "z": z, "valid": valid, "on_head": m, "fit": fit, "coverage": coverage, "vertical_wear_mm": -vw,
-            "side_wear_mm": head.gauge_point_mm()[0] - q_face, "n_wear": np.minimum(n_vw, n_sw)}
+            "side_wear_mm": head.gauge_point_mm()[0] - q_face, "n_wear": np.minimum(n_vw, n_sw),
+            "pose_points": valid, "glare": glare}
 
 
 def nominal_pose(head: RailHead, side: str, gauge_nominal_m: float, n: int) -> np.ndarray:
@@ -217,6 +239,7 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
     c, s = np.cos(roll_rad)[:, None], np.sin(roll_rad)[:, None]
     faults = []
     bad = np.zeros(F, bool)
+    wear_bad = {}
     face = {}
     for side, r in rails.items():
         sg = SIDE_SIGN[side]
@@ -241,6 +264,11 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
             faults += [(first_frame + int(i), side, reason) for i in np.nonzero(new)[0]]
             taken |= flag
         bad |= taken
+        # wear only: a glint's tails near the points that fix the pose (and so the unworn
+        # profile the wear is measured against); gauge and cross-level stay
+        glare_wear = near_glare(r["pose_points"], r["glare"], limits.wear_glare_margin_columns) & ~taken
+        faults += [(first_frame + int(i), side, "glare_near_stripe") for i in np.nonzero(glare_wear)[0]]
+        wear_bad[side] = glare_wear
     faults.sort()
     o = {side: rails[side]["fit"].pose for side in SIDE_SIGN}
     dy = o["left"][:, 0] - o["right"][:, 0]
@@ -250,8 +278,8 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
     nan = lambda x: np.where(bad, np.nan, x)  # noqa: E731
     return FrameMeasurements(
         nan(gauge), nan(cross),
-        {k: nan(r["vertical_wear_mm"]) for k, r in rails.items()},
-        {k: nan(r["side_wear_mm"]) for k, r in rails.items()},
+        {k: np.where(wear_bad[k], np.nan, nan(r["vertical_wear_mm"])) for k, r in rails.items()},
+        {k: np.where(wear_bad[k], np.nan, nan(r["side_wear_mm"])) for k, r in rails.items()},
         {k: np.where(bad[:, None], np.nan, o[k]) for k in SIDE_SIGN},
         {k: nan(r["fit"].rms_mm) for k, r in rails.items()}, faults)
 

@@ -30,9 +30,11 @@ class StripeSettings:
     glare_margin_columns: int = 20
 
 
-def stripe_centres(images: np.ndarray, settings: StripeSettings = StripeSettings()) -> np.ndarray:
+def stripe_centres(images: np.ndarray, settings: StripeSettings = StripeSettings(),
+                   with_glare: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Stripe row centres (B, W) [px, row index of pixel centres] of grey images (B, H, W) (or
-    (H, W) -> (W,)); NaN where a column has no stripe (module docstring)."""
+    (H, W) -> (W,)); NaN where a column has no stripe (module docstring). ``with_glare`` also
+    returns the glare columns (B, W) (or (W,)), margin included."""
     imgs = np.asarray(images)
     single = imgs.ndim == 2
     if single:
@@ -54,8 +56,11 @@ def stripe_centres(images: np.ndarray, settings: StripeSettings = StripeSettings
     with np.errstate(invalid="ignore", divide="ignore"):
         centre = (w * offs).sum(axis=1) / sw
         width = np.sqrt(np.maximum((w * (offs - centre[:, None, :]) ** 2).sum(axis=1) / sw, 0.0))
-    ok = (height >= settings.min_peak_dn) & (sw > 0) & (width <= settings.max_width_px) & ~glare_columns(imgs, settings)
+    glare = glare_columns(imgs, settings)
+    ok = (height >= settings.min_peak_dn) & (sw > 0) & (width <= settings.max_width_px) & ~glare
     out = np.where(ok, peak_row + centre, np.nan)
+    if with_glare:
+        return (out[0], glare[0]) if single else (out, glare)
     return out[0] if single else out
 
 
