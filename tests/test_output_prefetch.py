@@ -11,7 +11,7 @@ from trackfusion.evaluation.api import read_trajectory
 from trackfusion.evaluation.reference import compare_with_reference
 from trackfusion.output_prefetch import OutputPrefetch
 from trackfusion.sensors.fileio import write_csv_table
-from trackfusion.workers import can_fork
+from trackfusion.forked import can_fork
 
 ORIGIN = {"lat_deg": 45.0, "lon_deg": 7.0, "h_m": 300.0}
 

@@ -160,10 +160,10 @@ def test_a_dead_worker_ends_the_solve_naming_its_part(survey, monkeypatch):
     parent, last = os.getpid(), X(batch.t_s.size - 1)
     real = PT._reduce
 
-    def dying(graph, interior):  # the process of the last part is killed
+    def dying(graph, interior, *ordering):  # the process of the last part is killed
         if os.getpid() != parent and last in interior:
             os.kill(os.getpid(), signal.SIGKILL)
-        return real(graph, interior)
+        return real(graph, interior, *ordering)
     monkeypatch.setattr(PT, "_reduce", dying)
     three = _with_parts(problem, 75.0)
     with pytest.raises(PartWorkerDied, match=r"^the smoother's worker process of part 3 died \(killed by signal 9\)$"):
@@ -185,10 +185,10 @@ def test_a_dead_worker_exits_1_with_one_line_and_nothing_written(survey_dir, tmp
     parent = os.getpid()
     real = PT._reduce
 
-    def dying(graph, interior):
+    def dying(graph, interior, *ordering):
         if os.getpid() != parent:
             os.kill(os.getpid(), signal.SIGKILL)
-        return real(graph, interior)
+        return real(graph, interior, *ordering)
     monkeypatch.setattr(PT, "_reduce", dying)
     out = tmp_path / "out"
     assert cli.main(["run", str(cfg), "--out", str(out)]) == 1
@@ -212,11 +212,11 @@ def test_ctrl_c_during_a_step_leaves_no_process_behind(survey, monkeypatch):
     real = PT._reduce
     started = multiprocessing.get_context("fork").Event()
 
-    def slow(graph, interior):
+    def slow(graph, interior, *ordering):
         if os.getpid() != parent:
             started.set()
             time.sleep(60.0)
-        return real(graph, interior)
+        return real(graph, interior, *ordering)
     monkeypatch.setattr(PT, "_reduce", slow)
 
     def interrupt():

@@ -1,4 +1,11 @@
-"""Work done in forked child processes while this process goes on (a run's outputs on the second core).
+"""The toolkit's forked child processes: when they may be started (:func:`can_fork`, for every
+user: the log reader's decode workers, sensors/mcap_log.py; the smoother's parts,
+trackfusion/parallel.py; the densification, fusion/densify_forked.py; the outputs, report/outputs.py;
+vision), and work done in forked children while this process goes on (a run's outputs on the
+second core).
+
+Children are forked, never spawned: a spawned one would import the caller's main script again
+and every module anew, and forking lets a child read the parent's arrays without copying them.
 
 :class:`ForkedTasks` runs functions in children forked from this process (they see its memory as it
 was at the fork, copy-on-write, and send their return value back through a pipe); :meth:`wait`
@@ -16,6 +23,7 @@ every function runs at once in this process (the same results and errors, in tur
 from __future__ import annotations
 
 import gc
+import multiprocessing
 import os
 import pickle
 import signal
@@ -23,7 +31,6 @@ import traceback
 from typing import Any, Callable
 
 from .errors import TrackfusionError
-from .workers import can_fork as workers_may_fork
 
 #: False: run every task in this process, in turn (e.g. to compare timings)
 ENABLED = True
@@ -34,9 +41,23 @@ class ForkedTaskError(TrackfusionError):
     """A forked child died without handing back its result."""
 
 
-def can_fork() -> bool:
-    """True when tasks would run in forked children (module docstring)."""
-    return ENABLED and not _IN_CHILD and workers_may_fork(2)
+def usable_cpus() -> int:
+    """CPUs this process may run on."""
+    return len(os.sched_getaffinity(0))
+
+
+def can_fork(workers: int = 2) -> bool:
+    """True when ``workers`` (>= 2) forked processes (this one among them) are worth starting
+    here: :data:`ENABLED`, two CPUs or more, ``fork`` available, and not inside a forked child
+    or a worker process already (e.g. ``trackfusion batch``'s, or a pool's daemonic worker,
+    which may not have children)."""
+    return (ENABLED and not _IN_CHILD and workers >= 2 and usable_cpus() >= 2
+            and multiprocessing.parent_process() is None and "fork" in multiprocessing.get_all_start_methods())
+
+
+def fork_context():
+    """The ``fork`` multiprocessing context."""
+    return multiprocessing.get_context("fork")
 
 
 class ForkedTask:

@@ -21,7 +21,7 @@ import signal
 import threading
 from typing import Any, Callable, Iterator
 
-from .workers import can_fork, fork_context
+from .forked import can_fork, fork_context
 
 
 class PartWorkerDied(RuntimeError):
@@ -60,7 +60,7 @@ def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
     """One step over ``groups`` of parts: ``reduce(group)`` per group (children for groups 1..),
     ``given = solve([reduced per group])`` here, ``back_substitute(group, given)`` per group.
     Returns ``(given, reduced per group, back-substituted per group)``. Without forking (one
-    group, or :func:`~trackfusion.workers.can_fork` false) everything runs here in turn."""
+    group, or :func:`~trackfusion.forked.can_fork` false) everything runs here in turn."""
     if len(groups) < 2 or not can_fork(len(groups)):
         reduced = [reduce(g) for g in groups]
         given = solve(reduced)

@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..forked import ForkedTask, ForkedTasks
+from ..forked import ForkedTask, ForkedTasks, can_fork
 from ..sensors.types import ImuData
-from ..workers import can_fork
 from .trajectory import DenseTrajectory, densify
 
 #: intervals per block of :func:`densify` (its default); the parts are cut at multiples of it
@@ -65,7 +64,7 @@ def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, 
     Earth rate) in up to ``workers`` children forked by ``tasks`` (made with ``always_fork=True``;
     leaving its ``with`` block on an error kills them) and return at once; ``workers`` 1: one
     child does it all, beside this process. In this process, before returning, when forking is
-    not possible here (:func:`trackfusion.workers.can_fork`) or the run is too short to be worth it."""
+    not possible here (:func:`trackfusion.forked.can_fork`) or the run is too short to be worth it."""
     global _JOB
     if key_idx.size - 1 < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # (a child needs a CPU beside this one)
         return Densifying(dense=densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,

@@ -17,8 +17,9 @@ interior variables (multifrontal QR in COLAMD's order with the part's separator 
 last: GTSAM ``eliminatePartialMultifrontal``), which leaves a Gaussian Bayes tree of the
 interior given the separator and the reduced (Schur complement) factors on the separator. The
 separator system (every part's reduced factors) is solved, and each part's Bayes tree is
-back-substituted given the separator's values, clique by clique from its root (the wrapper's
-Bayes tree has no ``optimize(given)``; its conditionals' ``solve`` does each clique). No approximation is
+back-substituted given the separator's values: its cliques' conditionals, in elimination order,
+make a Gaussian Bayes net whose ``optimize(given)`` solves them from the root down (the wrapper's
+Bayes tree has no ``optimize(given)``). No approximation is
 made: the step is the one-batch step to rounding, so the cost, the line search's and the
 gating's decisions are the batch's.
 
@@ -124,33 +125,44 @@ class Partition:
         np.maximum.at(hi, inv, kp)
         interior = [uniq[(lo == p) & (hi == p)] for p in range(self.count)]
         home = dict(zip(uniq.tolist(), lo.tolist()))
-        return Layout(factor_part, interior, uniq[lo != hi], home)
+        members = [np.flatnonzero(factor_part == p) for p in range(self.count)]
+        return Layout(factor_part, interior, uniq[lo != hi], home, members)
 
 
 @dataclass
 class Layout:
     """factor_part (F,) the part of each factor (-1: an empty slot); interior: per part its
-    interior keys; separator: the keys shared by parts; home: key -> the first part it is in."""
+    interior keys; separator: the keys shared by parts; home: key -> the first part it is in;
+    members: per part the indices of its factors (ascending)."""
 
     factor_part: np.ndarray
     interior: list[np.ndarray]
     separator: np.ndarray
     home: dict[int, int]
+    members: list[np.ndarray]
+
+    def part_graph(self, gfg: gtsam.GaussianFactorGraph, p: int) -> gtsam.GaussianFactorGraph:
+        """Part ``p``'s factors of ``gfg`` (a graph of this layout), in their order in ``gfg``."""
+        out = gtsam.GaussianFactorGraph()
+        for i in self.members[p].tolist():
+            out.push_back(gfg.at(i))
+        return out
 
 
 @dataclass
 class _Reduced:
-    """One part eliminated: its factors, the Bayes tree of its interior given the separator,
-    and the reduced factors on the separator."""
+    """One part eliminated: its factors, the Bayes net of its interior given the separator,
+    the reduced factors on the separator, and the elimination ordering of its interior."""
 
     graph: gtsam.GaussianFactorGraph
-    net: list | None  # the Bayes tree's conditionals, each after the ones it is conditioned on
+    net: gtsam.GaussianBayesNet | None  # the Bayes tree's clique conditionals in elimination order
     reduced: gtsam.GaussianFactorGraph
+    ordering: gtsam.Ordering | None = None
 
 
-def _reduce(graph: gtsam.GaussianFactorGraph, interior: np.ndarray) -> _Reduced:
-    if interior.size == 0:
-        return _Reduced(graph, None, graph)
+def interior_ordering(graph: gtsam.GaussianFactorGraph, interior: np.ndarray) -> gtsam.Ordering:
+    """COLAMD's elimination order of ``graph``'s ``interior`` keys, with every other key of the
+    graph (its separator keys) constrained last and left out."""
     keys = set(int(k) for k in interior)
     rest = [int(k) for k in graph.keyVector() if int(k) not in keys]
     full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(graph, rest) if rest else \
@@ -158,11 +170,24 @@ def _reduce(graph: gtsam.GaussianFactorGraph, interior: np.ndarray) -> _Reduced:
     ordering = gtsam.Ordering()
     for i in range(full.size() - len(rest)):
         ordering.push_back(full.at(i))
+    return ordering
+
+
+def _reduce(graph: gtsam.GaussianFactorGraph, interior: np.ndarray, ordering: gtsam.Ordering | None = None
+            ) -> _Reduced:
+    """Part ``graph`` with its ``interior`` keys eliminated (in ``ordering``: their
+    :func:`interior_ordering`, computed when not given; the iterations of one solve share it)."""
+    if interior.size == 0:
+        return _Reduced(graph, None, graph)
+    ordering = ordering if ordering is not None else interior_ordering(graph, interior)
     try:
         tree, reduced = graph.eliminatePartialMultifrontal(ordering, gtsam.EliminateQR)
     except RuntimeError:
         raise FusionError("the factor graph is singular (a state no measurement determines)") from None
-    return _Reduced(graph, _top_down(tree, ordering), reduced)
+    net = gtsam.GaussianBayesNet()
+    for cond in reversed(_top_down(tree, ordering)):
+        net.push_back(cond)
+    return _Reduced(graph, net, reduced, ordering)
 
 
 def _top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> list:
@@ -194,74 +219,81 @@ def _union(graphs) -> gtsam.GaussianFactorGraph:
 
 class PartitionedSolver:
     """Solves linearised graphs of one structure part by part (module docstring). The layout
-    is computed on the first graph and reused while the graphs keep its size (the iterations of
-    one Gauss-Newton solve)."""
+    and each part's interior ordering are computed on the first graph and reused while the
+    graphs keep its size (the iterations of one Gauss-Newton solve). Each process picks its own
+    parts' factors out of the graph (a forked worker reads them from the memory it was forked
+    with) and keeps their Bayes nets for the back-substitution."""
 
     def __init__(self, partition: Partition, workers: int = 1):
         self.partition, self.workers = partition, workers
         self.layout: Layout | None = None
         self._size = -1
+        self._orderings: dict[int, gtsam.Ordering] = {}
+
+    def _layout_of(self, gfg: gtsam.GaussianFactorGraph) -> Layout:
+        if self.layout is None or gfg.size() != self._size:
+            self.layout, self._size, self._orderings = self.partition.layout(gfg), gfg.size(), {}
+        return self.layout
 
     def split(self, gfg: gtsam.GaussianFactorGraph) -> list[gtsam.GaussianFactorGraph]:
         """The factors of ``gfg`` per part."""
-        if self.layout is None or gfg.size() != self._size:
-            self.layout, self._size = self.partition.layout(gfg), gfg.size()
-        parts = [gtsam.GaussianFactorGraph() for _ in range(self.partition.count)]
-        for i, p in enumerate(self.layout.factor_part.tolist()):
-            if p >= 0:
-                parts[p].push_back(gfg.at(i))
-        return parts
+        layout = self._layout_of(gfg)
+        return [layout.part_graph(gfg, p) for p in range(self.partition.count)]
 
     def solve(self, gfg: gtsam.GaussianFactorGraph) -> tuple[gtsam.VectorValues, "PartMarginals"]:
         """The Gauss-Newton step of ``gfg`` and the means to its marginals."""
-        parts = self.split(gfg)
-        interior = self.layout.interior
+        layout = self._layout_of(gfg)
+        interior, orderings = layout.interior, self._orderings
         held: dict[int, _Reduced] = {}  # in the process that reduced them (trackfusion/parallel.py)
 
-        def reduce(group: list[int]) -> list[gtsam.GaussianFactorGraph]:
-            held.update({p: _reduce(parts[p], interior[p]) for p in group})
-            return [held[p].reduced for p in group]
+        def reduce(group: list[int]) -> list[tuple[gtsam.GaussianFactorGraph, gtsam.Ordering | None]]:
+            for p in group:
+                held[p] = _reduce(layout.part_graph(gfg, p), interior[p], orderings.get(p))
+            # a part's ordering goes back once (the parent keeps it for the next iterations' workers)
+            return [(held[p].reduced, None if p in orderings else held[p].ordering) for p in group]
 
-        def solve_separator(reduced: list[list[gtsam.GaussianFactorGraph]]) -> gtsam.VectorValues:
-            if not self.layout.separator.size:
+        def solve_separator(reduced: list[list]) -> gtsam.VectorValues:
+            if not layout.separator.size:
                 return gtsam.VectorValues()
-            return _eliminate_all(_union(g for group in reduced for g in group)).optimize()
+            return _eliminate_all(_union(g for group in reduced for g, _ in group)).optimize()
 
         def back_substitute(group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
             out = {}
             for p in group:
                 if held[p].net is not None:
-                    sol = gtsam.VectorValues(given)
-                    for cond in held[p].net:
-                        sol.insert(cond.solve(sol))
+                    sol = held[p].net.optimize(given)
                     out.update((int(k), sol.at(int(k))) for k in interior[p])
             return out
 
-        separator, reduced, steps = run_step(groups_of(len(parts), self.workers), reduce, solve_separator,
-                                             back_substitute)
+        separator, reduced, steps = run_step(groups_of(self.partition.count, self.workers), reduce,
+                                             solve_separator, back_substitute)
+        flat = [item for group in reduced for item in group]
+        for p, (_, ordering) in enumerate(flat):
+            if ordering is not None:
+                orderings[p] = ordering
         delta = gtsam.VectorValues(separator)
         for step in steps:
             for k, v in step.items():
                 delta.insert(k, v)
-        flat = [g for group in reduced for g in group]
-        return delta, PartMarginals([_Reduced(parts[p], None, flat[p]) for p in range(len(parts))], self.layout)
+        return delta, PartMarginals(gfg, [g for g, _ in flat], layout)
 
 
 class PartMarginals:
     """The marginals of a partitioned solve, with the Bayes tree's calls the smoother uses
     (``marginalCovariance``, ``marginalFactor``, ``joint`` with an elimination function): a
     key's are those of the tree of its part's factors and the other parts' reduced factors
-    (exact; module docstring)."""
+    (exact; module docstring). Each part's tree is made at its first query and kept (together
+    about the memory of the one-batch tree)."""
 
-    def __init__(self, reduced: list[_Reduced], layout: Layout):
-        self._reduced, self._layout = reduced, layout
+    def __init__(self, gfg: gtsam.GaussianFactorGraph, reduced: list[gtsam.GaussianFactorGraph], layout: Layout):
+        self._gfg, self._reduced, self._layout = gfg, reduced, layout
         self._trees: dict[int, gtsam.GaussianBayesTree] = {}
 
     def tree(self, key: int) -> gtsam.GaussianBayesTree:
         p = self._layout.home[int(key)]
         if p not in self._trees:
-            g = _union([self._reduced[p].graph] + [r.reduced for q, r in enumerate(self._reduced) if q != p])
-            self._trees = {p: _eliminate_all(g)}  # one part's tree at a time: memory of one part
+            g = _union([self._layout.part_graph(self._gfg, p)] + [r for q, r in enumerate(self._reduced) if q != p])
+            self._trees[p] = _eliminate_all(g)
         return self._trees[p]
 
     def marginalCovariance(self, key: int) -> np.ndarray:

@@ -483,10 +483,16 @@ class _Builder:
 
 # --- solving ------------------------------------------------------------------------------------------
 
-def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None) -> float:
-    """Cost at ``values`` (``state``: the same estimate as arrays, when already extracted)."""
+def _total_cost(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None,
+                blocks: list | None = None) -> float:
+    """Cost at ``values`` (``state``: the same estimate as arrays, when already extracted). With
+    ``blocks`` (a list), the vectorised factors' :class:`~.factors.LinearBlocks` at ``values``
+    are appended to it (one per builder, for :func:`_linearize` at the same estimate)."""
     state = state or _State.of(values, with_scale)
-    return G.graph.error(values) + sum(build(state).cost() for _, build in G.builders)
+    built = [build(state) for _, build in G.builders]
+    if blocks is not None:
+        blocks.extend(built)
+    return G.graph.error(values) + sum(b.cost() for b in built)
 
 
 def cost_breakdown(G: _Graph, values: gtsam.Values, with_scale: bool) -> dict[str, float]:
@@ -503,12 +509,16 @@ def cost_breakdown(G: _Graph, values: gtsam.Values, with_scale: bool) -> dict[st
     return out
 
 
-def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None
-               ) -> gtsam.GaussianFactorGraph:
+def _linearize(G: _Graph, values: gtsam.Values, with_scale: bool, state: "_State | None" = None,
+               blocks: list | None = None) -> gtsam.GaussianFactorGraph:
+    """The graph linearised at ``values``; ``blocks``: the vectorised factors' blocks at ``values``
+    when already built (:func:`_total_cost`), else built here."""
     gfg = G.graph.linearize(values)
-    state = state or _State.of(values, with_scale)
-    for _, build in G.builders:
-        fx.to_jacobian_factors(build(state), gfg)
+    if blocks is None:
+        state = state or _State.of(values, with_scale)
+        blocks = [build(state) for _, build in G.builders]
+    for b in blocks:
+        fx.to_jacobian_factors(b, gfg)
     return gfg
 
 
@@ -559,7 +569,8 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
     returned ``tree`` is then its :class:`~.partitioned.PartMarginals`)."""
     state = previous.state if previous is not None else _State.of(values, with_scale)
-    cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state)
+    blocks = None if previous is not None else []  # the vectorised factors' blocks at ``values``
+    cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state, blocks)
     it = 0
     tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, None)
     history = previous.history.copy() if previous is not None else StepHistory()
@@ -567,7 +578,8 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
     for it in range(1, max_iterations + 1):
-        gfg = _linearize(G, values, with_scale, state)
+        gfg = _linearize(G, values, with_scale, state, blocks)
+        blocks = None
         if solver is not None:
             delta, tree = solver.solve(gfg)
         else:
@@ -578,7 +590,8 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         while step > 1e-3:
             new = values.retract(delta if step == 1.0 else delta.scale(step))
             new_state = _State.of(new, with_scale)
-            new_cost = _total_cost(G, new, with_scale, new_state)
+            new_blocks: list = []
+            new_cost = _total_cost(G, new, with_scale, new_state, new_blocks)
             if new_cost <= cost:
                 break
             step *= 0.5
@@ -588,7 +601,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         if step < 1.0:  # a damped step says nothing about the rate of convergence
             history = StepHistory()
         history.add(state.p, new_state.p)
-        values, cost, state = new, new_cost, new_state
+        values, cost, state, blocks = new, new_cost, new_state, new_blocks
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
         if decrease < rtol or history.converged(step_tol_m):
             break

@@ -53,7 +53,7 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata
                           SummaryOffset)
 
 from .. import __version__
-from ..workers import can_fork, fork_context
+from ..forked import can_fork, fork_context
 from ..errors import SensorDataError
 from . import cdr, schemas
 from .fileio import atomic_path

@@ -302,8 +302,7 @@ def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray,
     """:func:`measure_frames` over a whole run in batches of ``batch`` frames (bounded memory),
     split over ``workers`` forked processes (:class:`trackfusion.forked.ForkedTasks`: the images
     are read from the parent's memory, only the figures travel back) when that is possible."""
-    from ..forked import ForkedTasks
-    from ..workers import can_fork
+    from ..forked import ForkedTasks, can_fork
 
     check_inputs(units, images, roll_rad)
     F = len(roll_rad)
