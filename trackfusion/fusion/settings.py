@@ -157,6 +157,15 @@ class TotalStationFactorSettings(_Factor):
     solve: Literal["joint", "two_stage"] = "joint"
 
 
+class NoiseEstimationSettings(_Strict):
+    """Each measurement group's noise (NHC, odometer, wheel path, GNSS correlated part, every
+    total station, inclinometer) estimated from its residuals after the solve, with the
+    configured sigma as prior, applied where it differs significantly, and reported
+    (fusion/noise_components.py, docs/noise_estimation.md)."""
+
+    enabled: bool = True
+
+
 class FactorSettings(_Strict):
     imu: ImuFactorSettings = ImuFactorSettings()
     zupt: ZuptSettings = ZuptSettings()
@@ -166,6 +175,7 @@ class FactorSettings(_Strict):
     gnss: GnssFactorSettings = GnssFactorSettings()
     inclinometer: InclinometerFactorSettings = InclinometerFactorSettings()
     total_stations: TotalStationFactorSettings = TotalStationFactorSettings()
+    noise_estimation: NoiseEstimationSettings = NoiseEstimationSettings()
 
 
 class KeyframeSettings(_Strict):
