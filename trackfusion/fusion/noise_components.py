@@ -3,10 +3,12 @@
 Model: the true variance of every row of group ``g`` (component ``c`` of it: NHC lateral and
 vertical, GNSS correlated horizontal and vertical, one total station) is ``f_gc`` times the
 configured (datasheet) variance. After a solve with the factors ``f0`` applied, with
-``w_i`` the Huber weight and ``e_i`` the whitened residual of row ``i``, the weighted square sum
-``Omega_gc = sum w_i e_i^2`` has the expectation ``r_gc f_gc / f0_gc`` (Helmert / Foerstner),
+``e_i`` the whitened residual of row ``i``, the square sum ``Omega_gc = sum e_i^2`` over the
+factors inside a gate on the group's robust scale (:func:`_inliers`: the median, then a
+chi-square gate of tail :data:`GATE_TAIL`; the gate is the estimated noise's, not the stated
+one's) has the expectation ``r_gc f_gc / f0_gc`` (Helmert / Foerstner),
 ``r_gc = n_gc - tr(H_gc)`` the group's **redundancy**, ``H`` the hat matrix of the whole
-weighted, whitened, linearised system ``A (A^T A)^-1 A^T``.
+whitened, linearised system ``A (A^T A)^-1 A^T`` (rows Huber-weighted as the solve had them).
 
 **Redundancy.** ``tr(H_gc)`` is the Hutchinson estimate ``E[z_gc^T (H z)_gc]`` over random
 right-hand sides ``z ~ N(0, I)`` of every row of the graph (the IMU and prior factors too):
@@ -38,6 +40,7 @@ from typing import Callable
 
 import gtsam
 import numpy as np
+from scipy.stats import chi2
 
 from . import factors as fx
 
@@ -49,6 +52,10 @@ SIGNIFICANCE = 3.0
 MIN_CHANGE = 0.15
 #: the most solves repeated because an applied factor moved
 MAX_REFITS = 3
+#: largest amplification of an estimate's change by the Newton step of the applied factor
+MAX_STEP_GAIN = 5.0
+#: tail of the chi-square gate on the robust scale: the factors beyond it are left out of the estimate
+GATE_TAIL = 1e-4
 #: random right-hand sides of the redundancy estimate
 DRAWS = 4
 #: weight of the unary factors that carry the random gradient (an information of DRAW_WEIGHT^2 per variable)
@@ -148,24 +155,20 @@ class NoiseComponents:
         if not any(n in COMPONENTS for n, _ in builders):
             return False
         blocks = {n: b(state) for n, b in builders}
-        trace_h, trace_sd = _hat_traces(graph_gfg, blocks, labels, solve_linear, self.seed)
+        products = _hat_products(graph_gfg, blocks, labels, solve_linear, self.seed)
         moved = False
         for name, blk in blocks.items():
             if name not in COMPONENTS:
                 continue
             idx, comp = _component_index(name, blk, labels.get(name))
-            e2 = blk.whitened() ** 2 * blk.weights()[:, None]
+            inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0))
             new = {}
             for c, cname in enumerate(comp):
-                rows = idx == c
-                n = int(rows.sum())
                 f0 = self.applied.get(name, {}).get(cname, 1.0)
-                r = max(n - trace_h[name][c], 1.0)
-                f = (PRIOR_DOF + f0 * float(e2[rows].sum())) / (PRIOR_DOF + r)
-                sigma = f * float(np.hypot(np.sqrt(2.0 / (PRIOR_DOF + r)), trace_sd[name][c] / r))
-                use = abs(f - 1.0) > max(SIGNIFICANCE * sigma, MIN_CHANGE)
-                new[cname] = GroupEstimate(f, sigma, f0, r, n)
-                target = f if use else 1.0
+                g = _component_estimate(blk, products[name], (idx == c) & inlier[:, None], f0)
+                new[cname] = g
+                use = abs(g.factor - 1.0) > max(SIGNIFICANCE * g.sigma, MIN_CHANGE)
+                target = _newton_step(f0, g.factor, g.redundancy / max(g.rows, 1)) if use else 1.0
                 if abs(target / f0 - 1.0) > MIN_CHANGE:
                     moved = True
                     self.applied.setdefault(name, {})[cname] = target
@@ -178,16 +181,61 @@ class NoiseComponents:
         return False
 
 
-def _hat_traces(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.LinearBlocks], labels: dict,
-                solve_linear: Callable, seed: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Hutchinson estimates of ``tr(H_gc)`` per estimated group and component (module
-    docstring) and their standard errors: dicts name -> (C,). ``blocks``: every vectorised
-    factor group at the solution; ``graph_gfg``: the other factors, linearised."""
+def _newton_step(f0: float, f: float, redundancy_share: float) -> float:
+    """The factor to apply next, from the estimate ``f`` of a solve that applied ``f0``.
+
+    The estimate is a fixed-point map of the applied factor whose slope at the answer is the
+    group's share of the fit, ``1 - r / n`` (exactly so for one observed state, and the mean
+    over the group's rows otherwise): with a low redundancy the plain iteration ``f0 <- f``
+    crawls (``r / n = 0.2``: 20 % of the way per solve). The Newton step on that slope, in
+    logarithms (a factor stays positive), with the step at most :data:`MAX_STEP_GAIN` times the
+    plain one."""
+    gain = min(1.0 / max(redundancy_share, 1e-9), MAX_STEP_GAIN)
+    return float(f0 * np.exp(np.log(f / f0) * gain))
+
+
+def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float) -> GroupEstimate:
+    """The estimate (module docstring) of the component whose residual rows are ``rows`` (K, m)
+    bool, from the draws' row products ``z (H z)`` (D, K, m) and the factor ``f0`` applied."""
+    n = int(rows.sum())
+    e2 = blk.whitened() ** 2  # unweighted: the gate took the outliers out, a Huber weight would bias it low
+    per_draw = np.array([p[rows].sum() for p in products])
+    r = max(n - float(per_draw.mean()), 1.0)
+    r_sd = float(per_draw.std(ddof=1) / np.sqrt(per_draw.size)) if per_draw.size > 1 else 0.0
+    f = (PRIOR_DOF + f0 * float(e2[rows].sum())) / (PRIOR_DOF + r)
+    sigma = f * float(np.hypot(np.sqrt(2.0 / (PRIOR_DOF + r)), r_sd / r))
+    return GroupEstimate(f, sigma, f0, r, n)
+
+
+def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray) -> np.ndarray:
+    """(K,) the factors inside the gate :data:`GATE_TAIL` on the robust scale of their
+    components: each component's variance factor from the median of its squared whitened
+    residuals over its redundancy share ``1 - mean(h)`` (``h`` the draws' estimate of the hat
+    matrix's diagonal), then each factor's squared whitened residual, scaled by it, against the
+    chi-square quantile of its rows."""
+    e2 = blk.whitened() ** 2
+    scale = np.ones(n_comp)
+    for c in range(n_comp):
+        rows = idx == c
+        if rows.any():
+            share = float(np.clip(1.0 - hat[rows].mean(), 0.05, 1.0))
+            scale[c] = max(np.median(e2[rows]) / (chi2.median(1) * share), 1e-300)
+    q = np.sum(e2 / scale[idx], axis=1)
+    return q <= chi2.ppf(1.0 - GATE_TAIL, blk.residual.shape[1])
+
+
+def _hat_products(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.LinearBlocks], labels: dict,
+                  solve_linear: Callable, seed: int) -> dict[str, np.ndarray]:
+    """Per estimated group, the row products ``z * (H z)`` (D, K, m) of :data:`DRAWS` random
+    right-hand sides (module docstring: their sum over a component's rows is the Hutchinson
+    estimate of its ``tr(H)``, their mean per row of ``H``'s diagonal). ``blocks``: every
+    vectorised factor group at the solution; ``graph_gfg``: the other factors, linearised."""
     rng = np.random.default_rng(seed)
     rows = _graph_rows(graph_gfg)
     base = _copy(graph_gfg)
     for blk in blocks.values():
         fx.to_jacobian_factors(blk, base)
+    aw = {n: _weighted(blk) for n, blk in blocks.items()}
     draws = {n: [] for n in blocks if n in COMPONENTS}
     for _ in range(DRAWS):
         z_graph = [rng.standard_normal(b.size) for _, _, b in rows]
@@ -195,7 +243,6 @@ def _hat_traces(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.Linea
         grad: dict[int, np.ndarray] = {}
         for (keys, A, b), z in zip(rows, z_graph):
             _add_gradient(grad, keys, A, z - b)
-        aw = {n: _weighted(blk) for n, blk in blocks.items()}
         for n, (A, b) in aw.items():
             for key_arr, J in zip(blocks[n].keys, A):
                 _add_gradient_batch(grad, key_arr, J, z_own[n] - b)
@@ -205,14 +252,9 @@ def _hat_traces(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.Linea
                                            gtsam.noiseModel.Unit.Create(g.size)))
         delta = solve_linear(extra)
         for n in draws:
-            A = aw[n][0]
-            hz = sum(np.einsum("kij,kj->ki", J, _gather(delta, k, J.shape[2])) for k, J in zip(blocks[n].keys, A))
-            idx, comp = _component_index(n, blocks[n], labels.get(n))
-            prod = z_own[n] * hz
-            draws[n].append([float(prod[idx == c].sum()) for c in range(len(comp))])
-    mean = {n: np.mean(d, axis=0) for n, d in draws.items()}
-    sd = {n: np.std(d, axis=0, ddof=1) / np.sqrt(len(d)) for n, d in draws.items()}
-    return mean, sd
+            hz = sum(np.einsum("kij,kj->ki", J, _gather(delta, k, J.shape[2])) for k, J in zip(blocks[n].keys, aw[n][0]))
+            draws[n].append(z_own[n] * hz)
+    return {n: np.array(d) for n, d in draws.items()}
 
 
 def _copy(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianFactorGraph:
