@@ -121,7 +121,8 @@ def drawn_sigmas(d: Path) -> dict:
                    gnss_tau_s=g.gm_tau_s)
     if cfg.total_stations is not None:
         t = aiding.TotalStationSpec(**{a: b for a, b in cfg.total_stations.items() if a != "prism_lever_arm_b_m"})
-        out.update(ts_angle_sigma_arcsec=t.angle_sigma_arcsec, ts_distance_sigma_mm=t.distance_sigma_mm)
+        out.update(ts_angle_sigma_arcsec=t.angle_sigma_arcsec, ts_distance_sigma_mm=t.distance_sigma_mm,
+                   ts_factor=t.distance_sigma_mm / aiding.TotalStationSpec.model_fields["distance_sigma_mm"].default)
     return out
 
 
@@ -192,6 +193,8 @@ def ratios(est: dict, drawn: dict) -> dict:
         out["gnss_correlated_v"] = ge["vertical"]["estimated_sigma_mm"] / drawn["gnss_correlated_mm"][1]
     if est.get("odometer") and "odometer_mm" in drawn:
         out["odometer"] = est["odometer"]["along"]["estimated_sigma_mm"] / drawn["odometer_mm"]
+    for station, e in (est.get("prism") or {}).items():  # angle and distance noise both drawn k times
+        out[f"total_station_{station}"] = e["sigma_scale"] / drawn["ts_factor"]
     if est.get("nhc"):
         for a in ("lateral", "vertical"):
             out[f"nhc_{a}"] = est["nhc"][a]["estimated_sigma_mm_per_s"] / drawn["nhc_mm_per_s"][a]

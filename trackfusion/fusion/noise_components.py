@@ -58,8 +58,15 @@ MAX_STEP_GAIN = 5.0
 GATE_TAIL = 1e-4
 #: random right-hand sides of the redundancy estimate
 DRAWS = 4
-#: weight of the unary factors that carry the random gradient (an information of DRAW_WEIGHT^2 per variable)
-DRAW_WEIGHT = 1e-4
+#: weight of the unary factors that carry the random gradient: an information of DRAW_WEIGHT^2
+#: per variable (0.01: a sigma of 10 m or rad, beside the weakest state's ~4e3 of a GNSS error:
+#: tr(H) biased by ~1e-6 relative), and a right-hand side ``g / DRAW_WEIGHT`` whose rounding
+#: grows as it shrinks (1e-4: tr(H) of the one-batch and the partitioned solve 2 apart in 600;
+#: 0.1: 1e-3 apart)
+DRAW_WEIGHT = 0.1
+#: significant digits an applied factor is rounded to (its own uncertainty is >= 1 %): the
+#: one-batch and the partitioned solve, whose estimates differ by rounding, apply the same factor
+APPLIED_DIGITS = 3
 #: the groups estimated, and each one's components by residual row (None: one per label, e.g. per station)
 COMPONENTS: dict[str, tuple[str, ...] | None] = {
     "nhc": ("lateral", "vertical"),
@@ -189,9 +196,9 @@ def _newton_step(f0: float, f: float, redundancy_share: float) -> float:
     over the group's rows otherwise): with a low redundancy the plain iteration ``f0 <- f``
     crawls (``r / n = 0.2``: 20 % of the way per solve). The Newton step on that slope, in
     logarithms (a factor stays positive), with the step at most :data:`MAX_STEP_GAIN` times the
-    plain one."""
+    plain one; rounded to :data:`APPLIED_DIGITS` significant digits."""
     gain = min(1.0 / max(redundancy_share, 1e-9), MAX_STEP_GAIN)
-    return float(f0 * np.exp(np.log(f / f0) * gain))
+    return float(f"{f0 * np.exp(np.log(f / f0) * gain):.{APPLIED_DIGITS}g}")
 
 
 def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float) -> GroupEstimate:
