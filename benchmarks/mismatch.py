@@ -8,7 +8,7 @@ Per scenario and seed, factors ``k`` (log-uniform in 0.5-2, from the seed; print
 simulated IMU white noise (gyro, accelerometer), the GNSS white and correlated parts, the odometer
 quantum (its ticks per revolution / k), the rails' irregularity amplitude (the NHC violation)
 and the total stations' angle and distance noise. The receiver states the datasheet white
-sigma (``gnss.stated_sigma_factor = 1 / k``). Two runs of the one simulated survey:
+sigma (``gnss.stated_sigma_factor = 1 / k``), and 5 % of its fixes are gross errors. Two runs of the one simulated survey:
 
 * ``datasheet``: the IMU grade's nominal figures, the library's NHC / odometer / wheel-path
   sigmas, the pipeline's GNSS correlated defaults (8 / 15 mm, 300 s), the instrument's stated
@@ -71,7 +71,7 @@ def _overrides(scenario: str, k: dict[str, float], stated_true: bool) -> list[st
         out.append(f"odometer.ticks_per_rev={max(1, int(round(ticks / k['odometer'])))}")
     if cfg.gnss is not None:
         g = aiding.GnssSpec(**{a: b for a, b in cfg.gnss.items() if a != "lever_arm_b_m"})
-        out += [f"gnss.sigma_h_mm={g.sigma_h_mm * k['gnss_white']:.6g}",
+        out += ["gnss.outlier_fraction=0.05", f"gnss.sigma_h_mm={g.sigma_h_mm * k['gnss_white']:.6g}",
                 f"gnss.sigma_v_mm={g.sigma_v_mm * k['gnss_white']:.6g}",
                 f"gnss.stated_sigma_factor={1.0 if stated_true else 1.0 / k['gnss_white']:.6g}",
                 f"gnss.gm_sigma_h_mm={g.gm_sigma_h_mm * k['gnss_correlated']:.6g}",

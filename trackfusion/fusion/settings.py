@@ -157,7 +157,7 @@ class TotalStationFactorSettings(_Factor):
     solve: Literal["joint", "two_stage"] = "joint"
 
 
-class NoiseEstimationSettings(_Strict):
+class NoiseEstimationSettings(_Factor):
     """Each measurement group's noise (NHC, odometer, wheel path, GNSS correlated part, every
     total station, inclinometer) estimated from its residuals after the solve, with the
     configured sigma as prior, applied where it differs significantly, and reported
