@@ -872,7 +872,10 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
     partition = _partition(problem, t_key, bias_seg, seg)
     white_factor, noise = np.ones(2), None  # the GNSS white-noise variance factors applied, their estimate
-    components = nc.NoiseComponents() if problem.factors.noise_estimation.enabled else None
+    # a run in chunks keeps the configured noise (a chunk's own estimate would break the hand-over's
+    # continuity with its neighbours); fusion/noise_components.py
+    chunked = join is not None or hand_over_t_s is not None
+    components = nc.NoiseComponents() if problem.factors.noise_estimation.enabled and not chunked else None
     for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
