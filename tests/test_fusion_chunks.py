@@ -36,6 +36,7 @@ def _run(d, chunk_s):
     data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S, workers=1)
     data["factors"]["wheel_path"] = False  # chunked runs leave it out (test_chunked_run_leaves_the_wheel_path_out)
     data["keyframes"]["spacing_s"] = data["keyframes"]["spacing_without_wheel_path_s"]  # and so run on these
+    data["factors"]["noise_estimation"] = False  # chunks keep the configured noise (docs/noise_estimation.md)
     return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
 
 

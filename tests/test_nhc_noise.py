@@ -2,7 +2,7 @@
 
 Oracles: the hand-computed transfer of a sinusoidal irregularity; the simulator's own rigid
 trolley (wheel contacts -> frame) on a track with a sinusoid; a synthesized German-spectrum
-track; the configs in configs/ against the derivation of their scenario.
+track; the configs in configs/ carry the library sigma, not their scenario's derivation.
 """
 
 from __future__ import annotations
@@ -108,12 +108,15 @@ def test_settings_per_axis_and_fallback():
 
 
 @pytest.mark.parametrize("path", sorted(CONFIGS.glob("*.yaml")), ids=lambda p: p.stem)
-def test_configs_carry_the_derived_sigma(path):
+def test_configs_carry_no_sigma_of_the_simulated_track(path):
+    """A shipped pipeline carries the library's NHC sigma (a datasheet value), not its
+    scenario's derived one (the benchmark of a mismatch, benchmarks/mismatch.py, uses that as the
+    truth); the smoother estimates the noise from the residuals."""
     cfg = load_scenario(path.stem)
     imu = sc._imu_spec(cfg.imu)
     derived = nhc_sigmas_mm_per_s(cfg, sc._motion_plan(cfg).chainage_range_m, imu.gyro_arw_deg_per_sqrt_h,
                                   imu.rate_hz)
     nhc = yaml.safe_load(path.read_text())["factors"]["nhc"]
-    for axis in ("lateral", "vertical"):
-        assert nhc[f"sigma_{axis}_mm_per_s"] == pytest.approx(derived[axis], rel=5e-3)
+    assert nhc is True
+    assert NhcSettings().sigmas_mps() * 1e3 != pytest.approx([derived["lateral"], derived["vertical"]], rel=0.05)
     assert max_speed_mps(cfg) > 0

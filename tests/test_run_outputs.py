@@ -23,7 +23,7 @@ from trackfusion.sensors.fileio import read_csv_table, write_csv_table
 SHORT = ["motion.passes=1",
          "motion.segments=[{hold_s: 20}, {move_to_m: 130, speed_mps: 3, accel_mps2: 0.4}, {hold_s: 5},"
          " {move_to_m: 40, speed_mps: 3, accel_mps2: 0.4}]"]
-BASE_SECTIONS = {"summary", "trajectory", "sigmas", "relative-accuracy", "rejected"}
+BASE_SECTIONS = {"summary", "trajectory", "sigmas", "relative-accuracy", "noise", "rejected"}
 CONTRACT_SECTIONS = {"geometry", "time-sync", "registration", "faults"}
 
 
@@ -109,6 +109,7 @@ def test_run_writes_the_report_with_the_sections_it_has_data_for(run_dir):
     assert verdict + " the thresholds at 5 m (MSE &le; 0.67 mm, ADEV &le; 0.16 mm, vertical and lateral)" in text
     assert str((run_dir / "out").resolve()) in text  # the output folder, not the staging folder
     assert ".out-" not in text
+    assert "<td>nhc</td><td>lateral</td>" in text and "<td>gnss (white)</td>" in text  # the estimated noise
 
 
 def test_contract_sections_render_when_their_data_is_present(full_dir):

@@ -567,6 +567,9 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
     }
     if res.gnss_noise is not None:  # the GNSS white noise from the residuals (fusion/gnss_noise.py)
         m["noise_estimates"] = {**m.get("noise_estimates", {}), "gnss": res.gnss_noise.to_json()}
+    if res.noise_components is not None:  # every other group's noise (fusion/noise_components.py)
+        m["noise_estimates"] = {**m.get("noise_estimates", {}), **res.noise_components["groups"],
+                                "components": {k: v for k, v in res.noise_components.items() if k != "groups"}}
     if res.odometer_scale is not None:
         m["odometer_scale_ppm"] = {"mean": float(res.odometer_scale.mean() * 1e6),
                                    "first": float(res.odometer_scale[0] * 1e6),

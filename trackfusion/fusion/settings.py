@@ -154,6 +154,15 @@ class TotalStationFactorSettings(_Factor):
     solve: Literal["joint", "two_stage"] = "joint"
 
 
+class NoiseEstimationSettings(_Factor):
+    """Each measurement group's noise (NHC, odometer, wheel path, GNSS correlated part, every
+    total station, inclinometer) estimated from its residuals after the solve, with the
+    configured sigma as prior, applied where it differs significantly, and reported
+    (fusion/noise_components.py, docs/noise_estimation.md)."""
+
+    enabled: bool = True
+
+
 class FactorSettings(StrictModel):
     imu: ImuFactorSettings = ImuFactorSettings()
     zupt: ZuptSettings = ZuptSettings()
@@ -163,6 +172,7 @@ class FactorSettings(StrictModel):
     gnss: GnssFactorSettings = GnssFactorSettings()
     inclinometer: InclinometerFactorSettings = InclinometerFactorSettings()
     total_stations: TotalStationFactorSettings = TotalStationFactorSettings()
+    noise_estimation: NoiseEstimationSettings = NoiseEstimationSettings()
 
 
 class KeyframeSettings(StrictModel):

@@ -25,6 +25,7 @@ from ..errors import FusionError
 from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
 from . import gnss_noise
+from . import noise_components as nc
 from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .preintegration import preintegrate
@@ -74,6 +75,7 @@ class SmootherResult:
     hand_over: "HandOver | None" = None  # the state at ``hand_over_t_s`` (fusion/chunks.py)
     station_cov: np.ndarray | None = None  # (8J,8J) joint marginal covariance of station_states (estimated ones)
     gnss_noise: "gnss_noise.GnssNoiseEstimate | None" = None  # the GNSS white noise from the residuals
+    noise_components: dict | None = None  # every other group's noise, metrics.json's (fusion/noise_components.py)
 
 
 @dataclass
@@ -883,12 +885,19 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
     partition = _partition(problem, t_key, bias_seg, seg)
     white_factor, noise = np.ones(2), None  # the GNSS white-noise variance factors applied, their estimate
-    for round_ in range(4):
+    # a run in chunks keeps the configured noise (a chunk's own estimate would break the hand-over's
+    # continuity with its neighbours); fusion/noise_components.py
+    chunked = join is not None or hand_over_t_s is not None
+    components = nc.NoiseComponents() if problem.factors.noise_estimation.enabled and not chunked else None
+    for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
         solved_factor = white_factor  # what this round's solve uses
         gnss_build = b.gnss(used, values, white_factor) if gnss is not None and used.size else None
         prism_build = b.prisms(prism_used, values) if prisms is not None else None
+        if components is not None:  # the groups' estimated noise (fusion/noise_components.py)
+            b.builders = components.wrap(b.builders, _component_labels(prisms, prism_used))
+            prism_build = dict(b.builders).get("prism", prism_build)
         G = _Graph(graph, b.builders, b.counts, gnss_build)
         say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
             + (f" (gating round {round_ + 1})" if gating else ""))
@@ -919,6 +928,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                     values.erase(E(int(i)))
             used = used[~bad]
             newly_rejected |= bool(np.any(bad))
+        if components is not None and not newly_rejected:
+            newly_rejected = _estimate_components(components, G, sol, values, partition,
+                                                  _component_labels(prisms, prism_used))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
                 sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol,
@@ -929,6 +941,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if noise is not None:  # the factor of the last solve (a refit the rounds ran out for is not applied)
         noise = replace(noise, applied=solved_factor)
         say(noise.summary())
+    components_json = None
+    if components is not None and components.estimates:
+        components_json = nc.components_json(components, fs)
+        for line in nc.summary_lines(components, fs):
+            say(line)
     state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
     if on_solved is not None:
@@ -953,7 +970,25 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_states=_station_states(prisms, state),
                           station_cov=_station_covariance(prisms, sol.tree),
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
-                          hand_over=hand_over, gnss_noise=noise)
+                          hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
+
+
+def _component_labels(prisms, prism_used: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Labels of the rows of the groups estimated per label (fusion/noise_components.py): the
+    station of each used prism reading."""
+    return {"prism": np.asarray(prisms.station_ids)[prisms.station[prism_used]]} if prisms is not None else {}
+
+
+def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved", values: gtsam.Values,
+                         partition: "Partition | None", labels: dict[str, np.ndarray]) -> bool:
+    """The groups' noise from the solve ``sol`` (fusion/noise_components.py), its linear
+    solves made as the solve's own (in parts when ``partition``); whether to solve again."""
+    def solve_linear(gfg: gtsam.GaussianFactorGraph) -> gtsam.VectorValues:
+        if partition is not None:
+            return PartitionedSolver(partition, partition.workers).solve(gfg)[0]
+        return _eliminate(gfg, sol.ordering).optimize()
+
+    return components.update(G.builders, G.graph.linearize(values), sol.state, solve_linear, labels)
 
 
 def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None

@@ -484,6 +484,46 @@ def registration_section(m: dict) -> str:
     return _section("registration", "Registration of the total stations", "".join(parts))
 
 
+def _noise_rows(ne: dict) -> list[dict]:
+    """One row per estimated noise component of ``metrics["noise_estimates"]``: the configured
+    (datasheet) and estimated sigma and the factor the smoother applied."""
+    rows = []
+    for group, comps in ne.items():
+        if group in ("imu", "gnss", "components") or not isinstance(comps, dict):
+            continue
+        for comp, e in comps.items():
+            unit = next((k[len("configured_sigma_"):] for k in e if k.startswith("configured_sigma_")), None)
+            rows.append({"group": group, "component": comp,
+                         "configured sigma": e.get(f"configured_sigma_{unit}") if unit else None,
+                         "estimated sigma": e.get(f"estimated_sigma_{unit}") if unit else None,
+                         "unit": (unit or "").replace("_per_", "/"), "sigma scale": e["sigma_scale"],
+                         "its 1-sigma": e["sigma_scale_sigma"],
+                         "applied sigma scale": e["applied_variance_factor"] ** 0.5,
+                         "redundancy": e["redundancy"], "rows": e["rows"]})
+    gnss = ne.get("gnss")
+    if gnss:
+        for i, axis in enumerate(("horizontal", "vertical")):
+            rows.append({"group": "gnss (white)", "component": axis,
+                         "configured sigma": gnss["stated_white_sigma_mm"][2 * i],
+                         "estimated sigma": gnss["estimated_white_sigma_mm"][2 * i], "unit": "mm",
+                         "sigma scale": gnss["sigma_scale"][axis], "its 1-sigma": gnss["sigma_scale_sigma"][axis],
+                         "applied sigma scale": gnss["applied_variance_factor"][axis] ** 0.5,
+                         "redundancy": gnss["mean_redundancy"][axis], "rows": gnss["fixes"]})
+    return rows
+
+
+def noise_section(m: dict) -> str:
+    """Each measurement group's noise estimated from the data beside its datasheet value
+    (docs/noise_estimation.md)."""
+    rows = _noise_rows(m.get("noise_estimates") or {})
+    if not rows:
+        return ""
+    return _section("noise", "Sensor noise estimated from the data",
+                    "<p class='note'>Configured (datasheet) and estimated sigma of each measurement group; the "
+                    "smoother applies an estimate that differs significantly (applied sigma scale).</p>"
+                    + _table(rows))
+
+
 def rejected_section(m: dict) -> str:
     parts = []
     gnss = m.get("rejected_gnss")
@@ -542,7 +582,7 @@ def render_report(run: RunFiles) -> str:
     """The whole HTML document of a run (a string)."""
     m = run.metrics
     sections = [summary_section(run), *trajectory_sections(run), accuracy_section(m, run.images), geometry_section(run), time_sync_section(m), registration_section(m),
-                rejected_section(m), faults_section(m)]
+                noise_section(m), rejected_section(m), faults_section(m)]
     sections = [s for s in sections if s]
     nav = "".join(f"<a href='#{sid}'>{_e(title)}</a>" for sid, title in
                   re.findall(r"<section id='([^']+)'><h2>([^<]+)</h2>", "".join(sections)))

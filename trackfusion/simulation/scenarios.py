@@ -31,7 +31,6 @@ from ..track.irregularity import IrregularitySpec, synthesize
 from ..track.rails import TrackModel
 from .config import ScenarioConfig, load_scenario
 from .motion import Hold, MotionProfile, Move, compile_plan
-from .nhc_sigma import nhc_sigmas_mm_per_s
 from .trolley import TrolleyGeometry, TrolleyKinematics
 
 #: Random streams, in a fixed order (append new ones at the end to keep old seeds' draws).
@@ -367,17 +366,18 @@ WHEEL_PATH_KEYFRAME_SPACING_S = 0.2
 
 def pipeline_for(sim: Simulation) -> dict[str, Any]:
     """The pipeline a simulated run should be processed with (paths relative to its folder;
-    schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md). The NHC sigmas are
-    what the rigid simulated trolley really does on its rails (:mod:`.nhc_sigma`); the wheel-path
-    factor is on in the GNSS + odometer surveys (not yet measured with total stations or without
-    GNSS: docs/wheel_path.md)."""
+    schema: :class:`trackfusion.pipeline.PipelineConfig`, docs/pipeline.md). Datasheet values
+    only: the scenario's IMU section (grade and stated figures), the library's NHC, odometer and
+    wheel-path sigmas (a trolley's documented tolerances; each group's noise is estimated from the
+    residuals, fusion/noise_components.py), nothing derived from the simulated track or the drawn
+    errors. The wheel-path factor is on in the GNSS + odometer surveys (not yet measured with
+    total stations or without GNSS: docs/wheel_path.md)."""
     cfg = sim.config
     imu_spec = _imu_spec(cfg.imu)
-    nhc = nhc_sigmas_mm_per_s(cfg, sim.motion.chainage_range_m, imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.rate_hz)
     # the rigid trolley's rear wheel runs where its front wheel ran (fusion/wheel_path.py)
     wheel_path = cfg.odometer is not None and cfg.gnss is not None and cfg.total_stations is None
     factors = {"imu": True, "zupt": True,
-               "nhc": {f"sigma_{axis}_mm_per_s": float(f"{max(sigma, 1e-3):.3g}") for axis, sigma in nhc.items()},
+               "nhc": True,
                "odometer": cfg.odometer is not None,
                "wheel_path": {"enabled": True, "keyframe_step": 1} if wheel_path else False,
                "gnss": cfg.gnss is not None, "inclinometer": cfg.inclinometer is not None,

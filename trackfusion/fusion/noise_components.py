@@ -1,0 +1,363 @@
+"""Variance component estimation: each measurement group's noise from its residuals.
+
+Model: the true variance of every row of group ``g`` (component ``c`` of it: NHC lateral and
+vertical, GNSS correlated horizontal and vertical, one total station) is ``f_gc`` times the
+configured (datasheet) variance. After a solve with the factors ``f0`` applied, with
+``e_i`` the whitened residual of row ``i``, the square sum ``Omega_gc = sum e_i^2`` over the
+factors inside a gate on the group's robust scale (:func:`_inliers`: the median, then a
+chi-square gate of tail :data:`GATE_TAIL`; the gate is the estimated noise's, not the stated
+one's) has the expectation ``r_gc f_gc / f0_gc`` (Helmert / Foerstner),
+``r_gc = n_gc - tr(H_gc)`` the group's **redundancy**, ``H`` the hat matrix of the whole
+whitened, linearised system ``A (A^T A)^-1 A^T`` (rows Huber-weighted as the solve had them).
+
+**Redundancy.** ``tr(H_gc)`` is the Hutchinson estimate ``E[z_gc^T (H z)_gc]`` over random
+right-hand sides ``z ~ N(0, I)`` of every row of the graph (the IMU and prior factors too):
+``H z`` is ``A delta`` with ``delta`` the least-squares step of the system with its right-hand
+side replaced by ``z``. Hand-written because GTSAM has no trace of the hat matrix: the step is
+the one linear solve the smoother makes (any split of it, fusion/partitioned.py, gives the
+same numbers to rounding), with ``z`` put in through one extra unary factor per variable
+carrying the gradient ``A^T (z - b)`` (the factors' own ``b`` stay: GTSAM cannot rebuild a
+five-key IMU factor with another ``b`` from Python). Unbiased; its variance per draw is at
+most ``2 tr(H_gc)``: the draws' scatter is part of the stated uncertainty.
+
+**Estimate, with the datasheet as prior** (an inverse-gamma prior of :data:`PRIOR_DOF` degrees
+of freedom at 1)::
+
+    f_gc = (PRIOR_DOF + f0_gc Omega_gc) / (PRIOR_DOF + r_gc)
+
+its 1-sigma ``f_gc sqrt(2 / (PRIOR_DOF + r_gc))`` with the redundancy's Monte Carlo error in
+quadrature. It is applied (the group's sigmas scaled by ``sqrt(f)``, the Huber weights and the
+gates then decided on the estimated noise) when it differs from 1 by more than
+:data:`SIGNIFICANCE` sigmas and by more than :data:`MIN_CHANGE`; the solve is repeated (at most
+:data:`MAX_REFITS` times) while an applied factor moves by more than :data:`MIN_CHANGE`.
+A correct datasheet therefore leaves the solve as it was. The groups of :data:`FLOOR_GROUPS`
+keep their configured sigma as a floor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2
+
+from . import factors as fx
+
+#: degrees of freedom of the datasheet as a prior of each variance factor
+PRIOR_DOF = 8.0
+#: an estimate is applied when it differs from 1 by more than this many of its sigmas ...
+SIGNIFICANCE = 3.0
+#: ... and by more than this fraction (also: the change of an applied factor that calls for a new solve)
+MIN_CHANGE = 0.15
+#: the most solves repeated because an applied factor moved
+MAX_REFITS = 3
+#: largest amplification of an estimate's change by the Newton step of the applied factor
+MAX_STEP_GAIN = 5.0
+#: tail of the chi-square gate on the robust scale: the factors beyond it are left out of the estimate
+GATE_TAIL = 1e-4
+#: random right-hand sides of the redundancy estimate
+DRAWS = 4
+#: weight of the unary factors that carry the random gradient: an information of DRAW_WEIGHT^2
+#: per variable (0.01: a sigma of 10 m or rad, beside the weakest state's ~4e3 of a GNSS error:
+#: tr(H) biased by ~1e-6 relative), and a right-hand side ``g / DRAW_WEIGHT`` whose rounding
+#: grows as it shrinks (1e-4: tr(H) of the one-batch and the partitioned solve 2 apart in 600;
+#: 0.1: 1e-3 apart)
+DRAW_WEIGHT = 0.1
+#: significant digits an applied factor is rounded to (its own uncertainty is >= 1 %): the
+#: one-batch and the partitioned solve, whose estimates differ by rounding, apply the same factor
+APPLIED_DIGITS = 3
+#: the groups estimated, and each one's components by residual row (None: one per label, e.g. per station)
+COMPONENTS: dict[str, tuple[str, ...] | None] = {
+    "nhc": ("lateral", "vertical"),
+    "odometer": ("along",),
+    "wheel_path": ("lateral", "vertical"),
+    "gnss_error": ("horizontal", "horizontal", "vertical"),
+    "inclinometer": ("tilt", "tilt"),
+    "prism": None,
+}
+#: groups whose configured sigma is a floor: an estimate below it is reported, not applied. The
+#: wheel path's residual is the factor's approximation error (fusion/wheel_path.py), smooth in
+#: time: weighted as white noise of its own small variance it over-weights (short open-track
+#: survey seed 2: the 5 m vertical ADEV 0.053 mm at the trolley's 0.01 mm, 0.063 mm at the
+#: estimated 0.002 mm)
+FLOOR_GROUPS = ("wheel_path",)
+_KEY_DIM = {"x": 6, "v": 3, "b": 6, "s": 1, "e": 3, "t": fx.STATION_STATE_DIM}
+
+
+def _component_index(name: str, blocks: fx.LinearBlocks, labels: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
+    """(K, m) component index of each residual row of a group and the components' names."""
+    K, m = blocks.residual.shape
+    names = COMPONENTS[name]
+    if names is None:  # one component per label (station), all rows of a reading
+        uniq = [str(u) for u in np.unique(labels)] if labels is not None else ["all"]
+        idx = np.searchsorted(np.unique(labels), labels) if labels is not None else np.zeros(K, np.int64)
+        return np.repeat(idx[:, None], m, axis=1), uniq
+    comp = list(dict.fromkeys(names))
+    return np.tile(np.array([comp.index(n) for n in names[:m]]), (K, 1)), comp
+
+
+def scale_blocks(blocks: fx.LinearBlocks, factor_rows: np.ndarray) -> fx.LinearBlocks:
+    """``blocks`` with each row's variance multiplied by ``factor_rows`` (K, m)."""
+    s = np.sqrt(factor_rows)
+    if blocks.whiten is None:
+        return fx.LinearBlocks(blocks.keys, blocks.jacobians, blocks.residual, blocks.sigma * s, blocks.huber_k,
+                               None, blocks.group)
+    return fx.LinearBlocks(blocks.keys, blocks.jacobians, blocks.residual, blocks.sigma, blocks.huber_k,
+                           blocks.whiten / s[:, :, None], blocks.group)
+
+
+@dataclass
+class GroupEstimate:
+    """One component's estimate: ``factor`` (true over configured variance), its ``sigma``,
+    ``applied`` (what the last solve used), ``redundancy`` ``r``, ``rows`` ``n``."""
+
+    factor: float
+    sigma: float
+    applied: float
+    redundancy: float
+    rows: int
+
+    def to_json(self, configured_sigma: float | None, unit: str) -> dict:
+        out = {"variance_factor": self.factor, "variance_factor_sigma": self.sigma,
+               "sigma_scale": float(np.sqrt(self.factor)),
+               "sigma_scale_sigma": float(self.sigma / (2 * np.sqrt(self.factor))),
+               "applied_variance_factor": self.applied, "redundancy": self.redundancy, "rows": self.rows}
+        if configured_sigma is not None:
+            out[f"configured_sigma_{unit}"] = configured_sigma
+            out[f"estimated_sigma_{unit}"] = float(configured_sigma * np.sqrt(self.factor))
+        return out
+
+
+@dataclass
+class NoiseComponents:
+    """The variance factors applied per group and component, and the last estimates."""
+
+    applied: dict[str, dict[str, float]] = field(default_factory=dict)
+    estimates: dict[str, dict[str, GroupEstimate]] = field(default_factory=dict)
+    refits: int = 0
+    seed: int = 0
+
+    def wrap(self, builders: list, labels: dict[str, np.ndarray]) -> list:
+        """``builders`` (name, build) with the applied factors of their groups (the others as they are)."""
+        out = []
+        for name, build in builders:
+            if name not in COMPONENTS or name not in self.applied:
+                out.append((name, build))
+                continue
+            out.append((name, self._scaled(name, build, labels.get(name))))
+        return out
+
+    def _scaled(self, name: str, build: Callable, labels: np.ndarray | None) -> Callable:
+        applied = self.applied[name]
+
+        def scaled(state) -> fx.LinearBlocks:
+            blocks = build(state)
+            idx, comp = _component_index(name, blocks, labels)
+            f = np.array([applied.get(c, 1.0) for c in comp])
+            return scale_blocks(blocks, f[idx])
+        return scaled
+
+    def update(self, builders: list, graph_gfg: gtsam.GaussianFactorGraph, state,
+               solve_linear: Callable[[gtsam.GaussianFactorGraph], gtsam.VectorValues],
+               labels: dict[str, np.ndarray]) -> bool:
+        """Estimate every group's factors from a solve (module docstring): ``builders`` its
+        (wrapped) vectorised factors' builders, ``graph_gfg`` the linearisation of its GTSAM
+        factors at ``state``, ``solve_linear`` its linear solve. Returns whether an applied
+        factor moved enough to solve again."""
+        if not any(n in COMPONENTS for n, _ in builders):
+            return False
+        blocks = {n: b(state) for n, b in builders}
+        products = _hat_products(graph_gfg, blocks, labels, solve_linear, self.seed)
+        moved = False
+        for name, blk in blocks.items():
+            if name not in COMPONENTS:
+                continue
+            idx, comp = _component_index(name, blk, labels.get(name))
+            inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0))
+            new = {}
+            for c, cname in enumerate(comp):
+                f0 = self.applied.get(name, {}).get(cname, 1.0)
+                g = _component_estimate(blk, products[name], (idx == c) & inlier[:, None], f0)
+                new[cname] = g
+                use = abs(g.factor - 1.0) > max(SIGNIFICANCE * g.sigma, MIN_CHANGE) and not (
+                    name in FLOOR_GROUPS and g.factor < 1.0)
+                target = _newton_step(f0, g.factor, g.redundancy / max(g.rows, 1)) if use else 1.0
+                if abs(target / f0 - 1.0) > MIN_CHANGE:
+                    moved = True
+                    self.applied.setdefault(name, {})[cname] = target
+            self.estimates[name] = new
+        if moved and self.refits < MAX_REFITS:
+            self.refits += 1
+            return True
+        for name, comps in self.estimates.items():  # no new solve: what the last one used is applied
+            self.applied[name] = {c: g.applied for c, g in comps.items()}
+        return False
+
+
+def _newton_step(f0: float, f: float, redundancy_share: float) -> float:
+    """The factor to apply next, from the estimate ``f`` of a solve that applied ``f0``.
+
+    The estimate is a fixed-point map of the applied factor whose slope at the answer is the
+    group's share of the fit, ``1 - r / n`` (exactly so for one observed state, and the mean
+    over the group's rows otherwise): with a low redundancy the plain iteration ``f0 <- f``
+    crawls (``r / n = 0.2``: 20 % of the way per solve). The Newton step on that slope, in
+    logarithms (a factor stays positive), with the step at most :data:`MAX_STEP_GAIN` times the
+    plain one; rounded to :data:`APPLIED_DIGITS` significant digits."""
+    gain = min(1.0 / max(redundancy_share, 1e-9), MAX_STEP_GAIN)
+    return float(f"{f0 * np.exp(np.log(f / f0) * gain):.{APPLIED_DIGITS}g}")
+
+
+def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float) -> GroupEstimate:
+    """The estimate (module docstring) of the component whose residual rows are ``rows`` (K, m)
+    bool, from the draws' row products ``z (H z)`` (D, K, m) and the factor ``f0`` applied."""
+    n = int(rows.sum())
+    e2 = blk.whitened() ** 2  # unweighted: the gate took the outliers out, a Huber weight would bias it low
+    per_draw = np.array([p[rows].sum() for p in products])
+    r = max(n - float(per_draw.mean()), 1.0)
+    r_sd = float(per_draw.std(ddof=1) / np.sqrt(per_draw.size)) if per_draw.size > 1 else 0.0
+    f = (PRIOR_DOF + f0 * float(e2[rows].sum())) / (PRIOR_DOF + r)
+    sigma = f * float(np.hypot(np.sqrt(2.0 / (PRIOR_DOF + r)), r_sd / r))
+    return GroupEstimate(f, sigma, f0, r, n)
+
+
+def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray) -> np.ndarray:
+    """(K,) the factors inside the gate :data:`GATE_TAIL` on the robust scale of their
+    components: each component's variance factor from the median of its squared whitened
+    residuals over its redundancy share ``1 - mean(h)`` (``h`` the draws' estimate of the hat
+    matrix's diagonal), then each factor's squared whitened residual, scaled by it, against the
+    chi-square quantile of its rows."""
+    e2 = blk.whitened() ** 2
+    scale = np.ones(n_comp)
+    for c in range(n_comp):
+        rows = idx == c
+        if rows.any():
+            share = float(np.clip(1.0 - hat[rows].mean(), 0.05, 1.0))
+            scale[c] = max(np.median(e2[rows]) / (chi2.median(1) * share), 1e-300)
+    q = np.sum(e2 / scale[idx], axis=1)
+    return q <= chi2.ppf(1.0 - GATE_TAIL, blk.residual.shape[1])
+
+
+def _hat_products(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.LinearBlocks], labels: dict,
+                  solve_linear: Callable, seed: int) -> dict[str, np.ndarray]:
+    """Per estimated group, the row products ``z * (H z)`` (D, K, m) of :data:`DRAWS` random
+    right-hand sides (module docstring: their sum over a component's rows is the Hutchinson
+    estimate of its ``tr(H)``, their mean per row of ``H``'s diagonal). ``blocks``: every
+    vectorised factor group at the solution; ``graph_gfg``: the other factors, linearised."""
+    rng = np.random.default_rng(seed)
+    rows = _graph_rows(graph_gfg)
+    base = _copy(graph_gfg)
+    for blk in blocks.values():
+        fx.to_jacobian_factors(blk, base)
+    aw = {n: _weighted(blk) for n, blk in blocks.items()}
+    draws = {n: [] for n in blocks if n in COMPONENTS}
+    for _ in range(DRAWS):
+        z_graph = [rng.standard_normal(b.size) for _, _, b in rows]
+        z_own = {n: rng.standard_normal(blk.residual.shape) for n, blk in blocks.items()}
+        grad: dict[int, np.ndarray] = {}
+        for (keys, A, b), z in zip(rows, z_graph):
+            _add_gradient(grad, keys, A, z - b)
+        for n, (A, b) in aw.items():
+            for key_arr, J in zip(blocks[n].keys, A):
+                _add_gradient_batch(grad, key_arr, J, z_own[n] - b)
+        extra = _copy(base)
+        for key, g in grad.items():
+            extra.add(gtsam.JacobianFactor(key, DRAW_WEIGHT * np.eye(g.size), g / DRAW_WEIGHT,
+                                           gtsam.noiseModel.Unit.Create(g.size)))
+        delta = solve_linear(extra)
+        for n in draws:
+            hz = sum(np.einsum("kij,kj->ki", J, _gather(delta, k, J.shape[2])) for k, J in zip(blocks[n].keys, aw[n][0]))
+            draws[n].append(z_own[n] * hz)
+    return {n: np.array(d) for n, d in draws.items()}
+
+
+def _copy(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianFactorGraph:
+    """A new graph of the same (shared) factors."""
+    out = gtsam.GaussianFactorGraph()
+    out.push_back(gfg)
+    return out
+
+
+def _weighted(blk: fx.LinearBlocks) -> tuple[list[np.ndarray], np.ndarray]:
+    """Whitened, Huber-weighted Jacobian blocks (K, m, d) and right-hand side (K, m), as
+    fusion/factors.py ``to_jacobian_factors`` hands them to GTSAM."""
+    sw = np.sqrt(blk.weights())
+    return [blk._w(J) * sw[:, None, None] for J in blk.jacobians], -blk.whitened() * sw[:, None]
+
+
+def _graph_rows(gfg: gtsam.GaussianFactorGraph) -> list[tuple[list[int], list[np.ndarray], np.ndarray]]:
+    """(keys, whitened blocks, b) of every factor already in ``gfg`` (the GTSAM-built ones)."""
+    out = []
+    for i in range(gfg.size()):
+        f = gfg.at(i)
+        if f is None:
+            continue
+        A, b = f.jacobian()
+        keys = list(f.keys())
+        dims = [_KEY_DIM[chr(gtsam.Symbol(k).chr())] for k in keys]
+        cuts = np.cumsum([0] + dims)
+        out.append((keys, [A[:, cuts[j]:cuts[j + 1]] for j in range(len(keys))], np.asarray(b).ravel()))
+    return out
+
+
+def _add_gradient(grad: dict, keys: list[int], A: list[np.ndarray], r: np.ndarray) -> None:
+    for k, Aj in zip(keys, A):
+        g = Aj.T @ r
+        grad[k] = grad[k] + g if k in grad else g
+
+
+def _add_gradient_batch(grad: dict, keys: np.ndarray, J: np.ndarray, r: np.ndarray) -> None:
+    """Add ``J_i^T r_i`` (J (K, m, d), r (K, m)) to the gradient of each key ``keys[i]``."""
+    g = np.einsum("kmd,km->kd", J, r)
+    uniq, inv = np.unique(keys, return_inverse=True)
+    total = np.zeros((uniq.size, J.shape[2]))
+    np.add.at(total, inv, g)
+    for k, v in zip(uniq.tolist(), total):
+        grad[k] = grad[k] + v if k in grad else v
+
+
+def _gather(delta: gtsam.VectorValues, keys: np.ndarray, dim: int) -> np.ndarray:
+    """(K, dim) the step at ``keys`` (K,)."""
+    uniq, inv = np.unique(keys, return_inverse=True)
+    vals = np.array([delta.at(int(k)) for k in uniq]).reshape(uniq.size, dim)
+    return vals[inv]
+
+
+def configured_sigmas(fs) -> dict[str, dict[str, tuple[float, str]]]:
+    """The configured sigma and its unit of each component, from the factor settings ``fs``
+    (fusion/settings.py ``FactorSettings``); the total stations' readings have a full
+    covariance of the instrument's precision, and only a factor."""
+    lat, ver = fs.nhc.sigmas_mps() * 1e3
+    return {"nhc": {"lateral": (float(lat), "mm_per_s"), "vertical": (float(ver), "mm_per_s")},
+            "odometer": {"along": (fs.odometer.sigma_mm, "mm")},
+            "wheel_path": {"lateral": (fs.wheel_path.sigma_mm, "mm"), "vertical": (fs.wheel_path.sigma_mm, "mm")},
+            "gnss_error": {"horizontal": (fs.gnss.correlated_sigma_h_mm, "mm"),
+                           "vertical": (fs.gnss.correlated_sigma_v_mm, "mm")},
+            "inclinometer": {"tilt": (fs.inclinometer.sigma_mrad, "mrad")}}
+
+
+def components_json(est: NoiseComponents, fs) -> dict:
+    """metrics.json's entry per group (``noise_estimates``): each component's estimate, its
+    1-sigma, the factor applied, the redundancy, and the configured and estimated sigma."""
+    conf = configured_sigmas(fs)
+    out = {}
+    for name, comps in est.estimates.items():
+        out[name] = {c: g.to_json(*conf.get(name, {}).get(c, (None, ""))) for c, g in comps.items()}
+    return {"groups": out, "refits": est.refits, "draws": DRAWS, "prior_dof": PRIOR_DOF}
+
+
+def summary_lines(est: NoiseComponents, fs) -> list[str]:
+    """One line per group: the configured and estimated sigmas and the factor applied."""
+    conf = configured_sigmas(fs)
+    lines = []
+    for name, comps in est.estimates.items():
+        parts = []
+        for c, g in comps.items():
+            value, unit = conf.get(name, {}).get(c, (None, ""))
+            est_txt = (f"{value:.3g} -> {value * np.sqrt(g.factor):.3g} {unit.replace('_per_', '/')}"
+                       if value is not None else f"sigma x {np.sqrt(g.factor):.2f}")
+            parts.append(f"{c} {est_txt} (+-{g.sigma / (2 * np.sqrt(g.factor)) * 100:.0f} %"
+                         + (f", applied x {np.sqrt(g.applied):.2f}" if g.applied != 1.0 else "") + ")")
+        lines.append(f"noise of {name}: " + "; ".join(parts))
+    return lines
