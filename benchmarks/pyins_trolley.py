@@ -350,3 +350,61 @@ def scale_errors_ppm(result, info: dict) -> np.ndarray:
     moving = speed > 0.5 * SPEED_MPS
     true_ppm = info["scale_error_ppm"] + info["drift_ppm_per_h"] * (t - t[0]) / 3600.0
     return (sm.odometer_scale * 1e6 - true_ppm)[moving]
+
+
+# --- the benchmark ------------------------------------------------------------------------------------
+
+def figures(result, info: dict) -> dict:
+    """The benchmark's figures of one run: 5 m MSE / ADEV per axis [mm], scale error [ppm], slips."""
+    m = result.metrics
+    ra = m["relative_accuracy"]
+    err = scale_errors_ppm(result, info)
+    slips = m.get("faults", {}).get("odometer_slips", {}).get("events", [])
+    out = {f"{c}_{k}_5m_mm": ra[c][f"{k}_at_threshold_mm"] for c in ("vertical", "lateral") for k in ("mse", "adev")}
+    out.update({"scale_true_ppm": info["scale_error_ppm"], "scale_estimated_mean_ppm": m["odometer_scale_ppm"]["mean"],
+                "scale_error_max_ppm": float(np.abs(err).max()), "scale_error_mean_ppm": float(err.mean()),
+                "slips_reported": len(slips), "slips_true": len(info["slips"]),
+                "gnss_rejected": len(m.get("rejected_gnss", [])),
+                "abs_rms_mm": {c: m["absolute_error"][c]["rms_mm"] for c in ("along", "lateral", "vertical")}})
+    out["pass"] = {"adev": max(out["vertical_adev_5m_mm"], out["lateral_adev_5m_mm"]) <= TARGET_ADEV_MM,
+                   "mse": max(out["vertical_mse_5m_mm"], out["lateral_mse_5m_mm"]) <= TARGET_MSE_MM,
+                   "scale": out["scale_error_max_ppm"] <= TARGET_SCALE_PPM,
+                   "no_false_slip": out["slips_reported"] == out["slips_true"]}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--minutes", type=float, default=15.0)
+    ap.add_argument("--scale-ppm", type=float, default=2000.0)
+    ap.add_argument("--drift-ppm-per-h", type=float, default=0.0)
+    ap.add_argument("--work", type=Path, default=CACHE)
+    ap.add_argument("--no-json", action="store_true")
+    args = ap.parse_args()
+    folder = args.work / f"pyins-trolley-{args.seed}-{args.minutes:g}min-{args.scale_ppm:g}ppm-{args.drift_ppm_per_h:g}"
+    tic = time.perf_counter()
+    info = make_survey(folder, args.seed, args.minutes, args.scale_ppm, args.drift_ppm_per_h)
+    made_s = time.perf_counter() - tic
+    cpu = time.process_time()
+    result = run_survey(folder, folder / "out")
+    fig = figures(result, info)
+    fig.update({"seed": args.seed, "minutes": args.minutes, "drift_ppm_per_h": args.drift_ppm_per_h,
+                "imu_noise_factor": IMU_NOISE_FACTOR, "survey_s": made_s,
+                "run_cpu_s_main_process": time.process_time() - cpu})
+    print(f"pyins trolley survey, seed {args.seed}, {args.minutes:g} min at {SPEED_MPS} m/s, "
+          f"odometer scale {args.scale_ppm:g} ppm, drift {args.drift_ppm_per_h:g} ppm/h")
+    for c in ("vertical", "lateral"):
+        print(f"  {c:8s} 5 m MSE {fig[f'{c}_mse_5m_mm']:.4f} mm (target <= {TARGET_MSE_MM}), "
+              f"ADEV {fig[f'{c}_adev_5m_mm']:.4f} mm (target <= {TARGET_ADEV_MM})")
+    print(f"  odometer scale: estimated {fig['scale_estimated_mean_ppm']:.1f} ppm (mean), error max "
+          f"{fig['scale_error_max_ppm']:.1f} ppm while moving (target <= {TARGET_SCALE_PPM:g})")
+    print(f"  slips reported {fig['slips_reported']} (true {fig['slips_true']}); pass: {fig['pass']}")
+    if not args.no_json:
+        RESULTS.parent.mkdir(exist_ok=True)
+        RESULTS.write_text(json.dumps(fig, indent=2) + "\n")
+        print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
