@@ -142,27 +142,6 @@ def run_duration_s(length_m: float, rest_start_s: float = 60.0, rest_end_s: floa
 
 # --- the trolley's motion -------------------------------------------------------------------------
 
-def _rot_z(a):
-    c, s = np.cos(a), np.sin(a)
-    out = np.zeros(a.shape + (3, 3))
-    out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1], out[..., 2, 2] = c, -s, s, c, 1.0
-    return out
-
-
-def _rot_y(a):
-    c, s = np.cos(a), np.sin(a)
-    out = np.zeros(a.shape + (3, 3))
-    out[..., 0, 0], out[..., 0, 2], out[..., 2, 0], out[..., 2, 2], out[..., 1, 1] = c, s, -s, c, 1.0
-    return out
-
-
-def _rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    out = np.zeros(a.shape + (3, 3))
-    out[..., 1, 1], out[..., 1, 2], out[..., 2, 1], out[..., 2, 2], out[..., 0, 0] = c, -s, s, c, 1.0
-    return out
-
-
 def trolley_pose(rail: Rail, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IMU position (N, 3) [m, ENU] and R_nb (N, 3, 3) (body = trolley frame, x forward, y left,
     z up) with the reference-rail wheels at design positions ``s_m -+ WHEELBASE_M / 2``."""
@@ -173,7 +152,8 @@ def trolley_pose(rail: Rail, s_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x = chord / np.linalg.norm(chord, axis=1)[:, None]
     yaw, pitch = np.arctan2(x[:, 1], x[:, 0]), np.arcsin(x[:, 2])
     roll = CubicSpline(rail.s_m, rail.roll_rad)(s_m)
-    R_nb = _rot_z(yaw) @ _rot_y(-pitch) @ _rot_x(roll)
+    from scipy.spatial.transform import Rotation
+    R_nb = Rotation.from_euler("ZYX", np.column_stack([yaw, -pitch, roll])).as_matrix()  # Rz Ry Rx
     pos = 0.5 * (rear + front) + R_nb @ np.asarray(LEVER_ARM_IMU_V_M)
     return pos, R_nb
 

@@ -428,11 +428,12 @@ class _Builder:
 
     def _odometer_scale_model(self, st) -> None:
         """Prior and process model of the scale-error states S(0..M-1), one per scale segment:
-        a drifting scale (docs/error_models.md, "Odometer scale"). The prior on S(0) (the
-        previous chunk's estimate after a chunk seam); one step S(1) - S(0) ~ N(0, rw^2 +
-        (rate sigma x segment)^2), the prior on the drift rate; then the second differences
-        S(m+1) - 2 S(m) + S(m-1) ~ N(0, 2 rw^2), rw the random walk over one segment: a steady
-        drift costs nothing, a change of the drift rate costs as the random walk would."""
+        a drifting scale, its rate a random walk (docs/error_models.md, "Odometer scale in the
+        fusion"). The prior on S(0) (the previous chunk's estimate after a chunk seam); one step
+        S(1) - S(0) ~ N(0, rw^2 + (rate sigma x segment)^2), the prior on the drift rate (rw:
+        the scale's random walk over one segment); then the second differences
+        S(m+1) - 2 S(m) + S(m-1) ~ N(0, 2/3 q^2 segment^3), q the drift rate's random walk
+        (an integrated random walk): a steady drift costs nothing."""
         n_seg = int(self.seg[-1]) + 1
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
@@ -450,7 +451,8 @@ class _Builder:
         m = np.arange(1, n_seg - 1)
         keys = [S(0) + m - 1, S(0) + m, S(0) + m + 1]
         J = [np.full((m.size, 1, 1), c) for c in (1.0, -2.0, 1.0)]
-        sigma = np.full((m.size, 1), np.sqrt(2.0) * rw)
+        q = st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 / 3600.0 / 60.0  # [1/s^1.5]
+        sigma = np.full((m.size, 1), np.sqrt(2.0 / 3.0) * q * st.scale_segment_s**1.5)
 
         def build(state: _State) -> fx.LinearBlocks:
             r = (state.s[m - 1] - 2.0 * state.s[m] + state.s[m + 1])[:, None]
