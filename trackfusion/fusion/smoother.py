@@ -441,6 +441,11 @@ class _Builder:
             scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
         self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         self._count("odometer_scale", n_seg)
+        if st.scale_rate_sigma_ppm_per_h is None:  # the scale a random walk
+            rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
+            for m in range(n_seg - 1):
+                self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
+            return
         if n_seg < 2:
             return
         rate_step = st.scale_rate_sigma_ppm_per_h * 1e-6 * st.scale_segment_s / 3600.0
