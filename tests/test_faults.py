@@ -106,6 +106,37 @@ def test_odometer_slip_from_residuals_of_a_straight_run():
     assert slips[0]["extra_m"] == pytest.approx(0.02, abs=2e-4)
 
 
+def _straight_run(K=1200, speed_mps=1.5, dt_s=0.2):
+    t = np.arange(K) * dt_s
+    R = np.repeat(np.eye(3)[None], K, axis=0)
+    pos = np.column_stack([speed_mps * t, np.zeros(K), np.zeros(K)])
+    return t, R, pos, np.diff(pos[:, 0])
+
+
+def test_a_scale_left_in_the_residuals_is_not_a_slip_but_a_step_still_is():
+    # a 1 % scale error the scale state did not take up, drifting by 0.3 % over the run:
+    # 3 mm per 0.3 m increment (60 sigma), yet no slip; a 1 cm step over 0.4 s on top is found
+    t, R, pos, true_inc = _straight_run()
+    drift = 0.01 + 0.003 * t[:-1] / t[-1]
+    delta = true_inc * (1.0 + drift) + np.random.default_rng(2).normal(0, 2e-5, true_inc.size)
+    args = (np.array([-0.6, 0.7, -0.25]), np.array([1.0, 0, 0]), 5e-5)
+    assert faults.odometer_slips(t, R, pos, np.zeros(t.size), delta, *args) == []
+    found = faults.residual_scale(t[:-1], -(delta - true_inc), delta)   # residual = model - measured
+    assert np.max(np.abs(found + drift / (1 + drift))) < 1e-4     # of a 3e-3 spread; noise 7e-5 a sample
+    delta[600:602] += 0.005
+    (slip,) = faults.odometer_slips(t, R, pos, np.zeros(t.size), delta, *args)
+    assert slip["start_s"] == pytest.approx(t[600]) and slip["end_s"] == pytest.approx(t[602])
+    assert slip["extra_m"] == pytest.approx(0.01, abs=2e-4)
+
+
+def test_residual_scale_at_rest_takes_the_nearest_moving_value():
+    t = np.arange(10.0)
+    delta = np.r_[np.zeros(3), np.full(7, 0.3)]
+    r = -0.002 * delta
+    np.testing.assert_allclose(faults.residual_scale(t, r, delta, window_s=3.0), -0.002)
+    assert not faults.residual_scale(t, r, np.zeros(10)).any()
+
+
 def test_summary_keeps_detected_faults_only():
     s = faults.summarise_faults({"gnss_outliers": [{"t_s": 1.0}], "gnss_outages": [], "truncated_log": None,
                                  "clock_jumps": [{"step_s": 0.2}]}, gnss_fixes=20)

@@ -29,6 +29,7 @@ from .alignment import END_MARGIN_S
 
 __all__ = ["correct_clock_jumps", "gnss_outages", "gnss_degraded_episodes", "odometer_slips",
            "prism_mislocks", "prism_gaps", "summarise_faults", "summary_lines", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M",
+           "SLIP_SCALE_WINDOW_S", "residual_scale",
            "PRISM_GAP_MIN_S"]
 
 #: an interval between fixes longer than this many nominal intervals is an outage
@@ -38,6 +39,11 @@ OUTAGE_FACTOR = 3.0
 SLIP_WHITENED_THRESHOLD = 8.0
 #: smallest distance discrepancy [m] reported as a slip episode
 SLIP_MIN_M = 2e-3
+#: window [s] of the running median of the residual scale (residual over increment) that the
+#: slip test removes first: a scale error or drift the scale state did not take up is not a slip
+SLIP_SCALE_WINDOW_S = 30.0
+#: increments shorter than this [m] do not enter the residual scale's median (at rest)
+_SLIP_MOVING_M = 1e-3
 #: a station's interval without readings is a gap when it lasts longer than this [s] (and
 #: than ``OUTAGE_FACTOR`` reading intervals)
 PRISM_GAP_MIN_S = 1.0
@@ -165,22 +171,47 @@ def gnss_degraded_episodes(t_s: np.ndarray, fix_quality: np.ndarray) -> list[dic
 
 # --- odometer slips --------------------------------------------------------------------------------
 
+def residual_scale(t_s: np.ndarray, r_m: np.ndarray, delta_m: np.ndarray,
+                   window_s: float = SLIP_SCALE_WINDOW_S) -> np.ndarray:
+    """Scale error (K,) [-] left in the odometer residuals: the running median, over
+    ``window_s`` of the moving increments around each one, of ``r_m / delta_m`` (``t_s`` (K,)
+    the increments' start times [s], ``r_m`` (K,) residuals, ``delta_m`` (K,) increments [m]).
+
+    A scale error the scale state did not take up (a drift faster than its random walk, a prior
+    that held it back) makes the residual proportional to the increment everywhere; a slip adds
+    distance over a fraction of a second. The median over a window many times a slip's length
+    follows the first and ignores the second. Increments at rest (shorter than 1 mm) do not
+    count and get the median of their nearest moving neighbours (0 without any)."""
+    moving = np.flatnonzero(np.abs(delta_m) > _SLIP_MOVING_M)
+    if moving.size == 0:
+        return np.zeros(r_m.shape)
+    from scipy.ndimage import median_filter
+    period_s = float(np.median(np.diff(t_s[moving]))) if moving.size > 1 else window_s
+    size = max(1, int(round(window_s / max(period_s, 1e-9))) | 1)
+    med = median_filter(r_m[moving] / delta_m[moving], size=size, mode="nearest")
+    return np.interp(t_s, t_s[moving], med)
+
+
 def odometer_slips(t_key_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, scale: np.ndarray,
                    delta_m: np.ndarray, wheel_lever_arm_b: np.ndarray, axis_b: np.ndarray, sigma_m: float
                    ) -> list[dict[str, float]]:
-    """Slip episodes from the odometer residuals of the smoothed trajectory.
+    """Slip episodes from the odometer residuals of the smoothed trajectory: steps the scale
+    cannot explain.
 
     ``t_key_s`` (K,) keyframe times; ``R_nb`` (K,3,3), ``pos_n`` (K,3) smoothed poses; ``scale``
     (K,) smoothed scale error; ``delta_m`` (K-1,) measured distance increments between keyframes;
-    ``sigma_m`` the increment's white noise [m]. An increment is suspect when its whitened
-    residual exceeds ``SLIP_WHITENED_THRESHOLD``; suspects at most two intervals apart form one
-    episode, reported when its summed discrepancy exceeds ``SLIP_MIN_M``:
-    ``{"start_s", "end_s", "extra_m"}`` (``extra_m``: distance reported beyond the smoothed
-    motion, negative when distance was lost) and ``max_whitened``.
+    ``sigma_m`` the increment's white noise [m]. First the scale error still left in the
+    residuals (:func:`residual_scale`, a running median over ``SLIP_SCALE_WINDOW_S``) is
+    removed; then an increment is suspect when its whitened residual exceeds
+    ``SLIP_WHITENED_THRESHOLD``; suspects at most two intervals apart form one episode, reported
+    when its summed discrepancy exceeds ``SLIP_MIN_M``: ``{"start_s", "end_s", "extra_m"}``
+    (``extra_m``: distance reported beyond the smoothed motion, negative when distance was lost)
+    and ``max_whitened``.
     """
     r, _ = fx.odometer_residual(R_nb[:-1], pos_n[:-1], R_nb[1:], pos_n[1:], scale[:-1], delta_m,
                                 wheel_lever_arm_b, axis_b)
     r = r[:, 0]
+    r = r - residual_scale(t_key_s[:-1], r, delta_m) * delta_m
     w = np.abs(r) / sigma_m
     out = []
     for a, b in _runs(w > SLIP_WHITENED_THRESHOLD, bridge=2):

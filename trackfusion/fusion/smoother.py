@@ -426,16 +426,46 @@ class _Builder:
 
         self.builders.append(("odometer", build))
         self._count("odometer", K)
+        self._odometer_scale_model(st)
+
+    def _odometer_scale_model(self, st) -> None:
+        """Prior and process model of the scale-error states S(0..M-1), one per scale segment:
+        a drifting scale, its rate a random walk (docs/error_models.md, "Odometer scale in the
+        fusion"). The prior on S(0) (the previous chunk's estimate after a chunk seam); one step
+        S(1) - S(0) ~ N(0, rw^2 + (rate sigma x segment)^2), the prior on the drift rate (rw:
+        the scale's random walk over one segment); then the second differences
+        S(m+1) - 2 S(m) + S(m-1) ~ N(0, 2/3 q^2 segment^3), q the drift rate's random walk
+        (an integrated random walk): a steady drift costs nothing."""
         n_seg = int(self.seg[-1]) + 1
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
         if self.join is not None and self.join.scale is not None:  # the previous chunk's, then one step
             scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
         self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
-        rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
-        for m in range(n_seg - 1):
-            self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
         self._count("odometer_scale", n_seg)
+        if st.scale_rate_sigma_ppm_per_h is None:  # the scale a random walk
+            rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
+            for m in range(n_seg - 1):
+                self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
+            return
+        if n_seg < 2:
+            return
+        rate_step = st.scale_rate_sigma_ppm_per_h * 1e-6 * st.scale_segment_s / 3600.0
+        self.g.add(gtsam.BetweenFactorVector(S(0), S(1), np.zeros(1),
+                                             gtsam.noiseModel.Isotropic.Sigma(1, np.hypot(rw, rate_step))))
+        if n_seg < 3:
+            return
+        m = np.arange(1, n_seg - 1)
+        keys = [S(0) + m - 1, S(0) + m, S(0) + m + 1]
+        J = [np.full((m.size, 1, 1), c) for c in (1.0, -2.0, 1.0)]
+        q = st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 / 3600.0 / 60.0  # [1/s^1.5]
+        sigma = np.full((m.size, 1), np.sqrt(2.0 / 3.0) * q * st.scale_segment_s**1.5)
+
+        def build(state: _State) -> fx.LinearBlocks:
+            r = (state.s[m - 1] - 2.0 * state.s[m] + state.s[m + 1])[:, None]
+            return fx.LinearBlocks(keys, J, r, sigma)
+
+        self.builders.append(("odometer_scale_drift", build))
 
     def nhc(self) -> None:
         st, tr, imu = self.pb.factors.nhc, self.pb.trolley, self.pb.imu
