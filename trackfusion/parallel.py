@@ -10,6 +10,10 @@ back-substituted the same way wherever it runs.
 
 A child that dies (killed, out of memory) ends the step with :class:`PartWorkerDied` naming
 its parts; every child has exited when a step returns or raises.
+
+With ``smoother.engine: dask`` (:func:`run_step_dask`) each group goes to an actor on a worker
+of a Dask cluster (:func:`dask_client`) instead: the same two halves, the parts' factors sent
+to it, the actor keeping its eliminations in between.
 """
 
 from __future__ import annotations
@@ -190,17 +194,11 @@ def run_step_dask(client, groups: list[list[int]], worker_cls: type, payloads: l
     trees do not pickle); ``actor.reduce(payload)``, ``given = solve([reduced per group])`` here,
     ``actor.back_substitute(pack_given(given))``. A worker lost ends the step with
     :class:`PartWorkerDied` naming its parts."""
-    actors = []
-    try:
-        for g in groups:
-            actors.append(client.submit(worker_cls, actor=True, pure=False).result())
-        reduced = _gather(groups, [a.reduce(p) for a, p in zip(actors, payloads)])
-        given = solve(reduced)
-        packed = pack_given(given)
-        done = _gather(groups, [a.back_substitute(packed) for a in actors])
-        return given, reduced, done
-    finally:
-        del actors
+    actors = _gather(groups, [client.submit(worker_cls, actor=True, pure=False) for _ in groups])
+    reduced = _gather(groups, [a.reduce(p) for a, p in zip(actors, payloads)])
+    given = solve(reduced)
+    packed = pack_given(given)
+    return given, reduced, _gather(groups, [a.back_substitute(packed) for a in actors])
 
 
 def _gather(groups: list[list[int]], futures: list) -> list[Any]:
