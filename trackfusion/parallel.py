@@ -10,6 +10,10 @@ back-substituted the same way wherever it runs.
 
 A child that dies (killed, out of memory) ends the step with :class:`PartWorkerDied` naming
 its parts; every child has exited when a step returns or raises.
+
+With ``smoother.engine: dask`` (:func:`run_step_dask`) each group goes to an actor on a worker
+of a Dask cluster (:func:`dask_client`) instead: the same two halves, the parts' factors sent
+to it, the actor keeping its eliminations in between.
 """
 
 from __future__ import annotations
@@ -138,3 +142,72 @@ def _send(group: list[int], proc, conn, payload: bytes) -> None:
         conn.send_bytes(payload)
     except (BrokenPipeError, OSError):
         raise _died(group, proc) from None
+
+
+_CLIENTS: dict = {}
+
+
+def dask_client(address: str | None, workers: int):
+    """The Dask client of ``smoother.engine: dask``: of the scheduler at ``address``, else of a
+    ``distributed.LocalCluster`` of ``workers`` single-threaded processes; one per process and
+    configuration, closed at exit. Raises :class:`~trackfusion.errors.ConfigError` (exit 2) when
+    Dask is missing or the scheduler cannot be reached (as ``trackfusion batch --engine dask``)."""
+    import atexit
+    from .errors import ConfigError
+    if (address, workers) in _CLIENTS:
+        return _CLIENTS[(address, workers)][0]
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise ConfigError("smoother.engine: dask: Dask is not installed (pip install 'trackfusion[distributed]')") from None
+    cluster = None
+    try:
+        if address is None:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(address, timeout=30)
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close()
+        raise ConfigError(f"smoother.address {address}: cannot reach the Dask scheduler ({exc})") from None
+    _CLIENTS[(address, workers)] = (client, cluster)
+    if len(_CLIENTS) == 1:
+        atexit.register(close_dask_clients)
+    return client
+
+
+def close_dask_clients() -> None:
+    """Close every client (and local cluster) :func:`dask_client` opened."""
+    while _CLIENTS:
+        _, (client, cluster) = _CLIENTS.popitem()
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_step_dask(client, groups: list[list[int]], worker_cls: type, payloads: list[Any],
+                  solve: Callable[[list[Any]], Any], pack_given: Callable[[Any], Any]
+                  ) -> tuple[Any, list[Any], list[Any]]:
+    """:func:`run_step` on the workers of a Dask ``client``: per group one actor of
+    ``worker_cls`` (it keeps its parts' eliminations between the step's two halves, as Bayes
+    trees do not pickle); ``actor.reduce(payload)``, ``given = solve([reduced per group])`` here,
+    ``actor.back_substitute(pack_given(given))``. A worker lost ends the step with
+    :class:`PartWorkerDied` naming its parts."""
+    actors = _gather(groups, [client.submit(worker_cls, actor=True, pure=False) for _ in groups])
+    reduced = _gather(groups, [a.reduce(p) for a, p in zip(actors, payloads)])
+    given = solve(reduced)
+    packed = pack_given(given)
+    return given, reduced, _gather(groups, [a.back_substitute(packed) for a in actors])
+
+
+def _gather(groups: list[list[int]], futures: list) -> list[Any]:
+    out = []
+    for g, fut in zip(groups, futures):
+        try:
+            out.append(fut.result())
+        except Exception as exc:  # noqa: BLE001 (a lost worker or actor: distributed's own exceptions)
+            if type(exc).__module__.startswith("distributed") or isinstance(exc, (OSError, TimeoutError)):
+                raise PartWorkerDied(f"the smoother's Dask worker of {_name(g)} failed ({type(exc).__name__})") from None
+            raise
+    return out

@@ -25,7 +25,13 @@ gating's decisions are the batch's.
 
 Marginals (:class:`PartMarginals`): the marginal of a variable of part ``p`` is that of part
 ``p``'s factors together with the other parts' reduced factors (the information the rest of the
-run holds on the separator), which is exact as well.
+run holds on the separator), which is exact as well. They are also the one-batch solve's
+marginals (:func:`part_marginals`, parts of :data:`MARGINAL_PART_S`): GTSAM's Bayes-tree
+marginals recurse from the root down every clique on the way (each clique's separator marginal
+from its parent's), and along the tree of a whole hour's chain that recursion drifts, by up to
+0.4 % of a position sigma on the hour of ``benchmarks/speed.py`` against the exact marginal
+(every other variable eliminated first, QR), whichever of Cholesky or QR it uses; a part's tree
+is short enough to stay within 2e-7 of it.
 
 Why hand-written: GTSAM has no partitioned solver in its Python wrapper; this is its partial
 elimination, applied per part.
@@ -39,7 +45,7 @@ import gtsam
 import numpy as np
 
 from ..errors import FusionError
-from ..parallel import groups_of, run_step
+from ..parallel import dask_client, groups_of, run_step, run_step_dask
 
 _INDEX_MASK = (1 << 56) - 1
 
@@ -85,6 +91,8 @@ class Partition:
     scale_seg: np.ndarray | None
     gnss_t_s: np.ndarray | None
     workers: int = 1  # processes a step's parts are dealt to (trackfusion/parallel.py)
+    engine: str = "local"  # or "dask": the workers of a Dask cluster (``smoother.engine``)
+    address: str | None = None  # the Dask scheduler's; None: a LocalCluster of ``workers`` processes
 
     @property
     def count(self) -> int:
@@ -203,6 +211,79 @@ def _top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> list:
     return list(cliques.values())
 
 
+def _back_substitute(held: dict[int, _Reduced], interior: dict[int, np.ndarray] | list[np.ndarray],
+                     group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
+    """The steps of the interior keys of the reduced parts ``group`` given the separator's."""
+    out = {}
+    for p in group:
+        if held[p].net is not None:
+            sol = held[p].net.optimize(given)
+            out.update((int(k), sol.at(int(k))) for k in interior[p])
+    return out
+
+
+def _pack(graph: gtsam.GaussianFactorGraph) -> list[str]:
+    """A linear graph of Jacobian factors as their GTSAM serialisations (a graph itself does not
+    pickle; a factor's text archive keeps every double to the bit). A linearised ``ImuFactor``
+    reaches Python as a bare ``GaussianFactor``: ``JacobianFactor(f)`` copies it as it is."""
+    out = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        out.append((f if isinstance(f, gtsam.JacobianFactor) else gtsam.JacobianFactor(f)).serialize())
+    return out
+
+
+def _unpack(packed: list[str]) -> gtsam.GaussianFactorGraph:
+    out = gtsam.GaussianFactorGraph()
+    for text in packed:
+        f = gtsam.JacobianFactor()
+        f.deserialize(text)
+        out.push_back(f)
+    return out
+
+
+def _ordering_keys(ordering: gtsam.Ordering | None) -> list[int] | None:
+    return None if ordering is None else [int(ordering.at(i)) for i in range(ordering.size())]
+
+
+def _ordering_of(keys: list[int] | None) -> gtsam.Ordering | None:
+    return None if keys is None else gtsam.Ordering(keys)
+
+
+def _pack_values(values: gtsam.VectorValues, keys: np.ndarray) -> dict[int, np.ndarray]:
+    """The vectors of ``keys`` (all that ``values`` holds) as a picklable mapping."""
+    return {int(k): np.array(values.at(int(k))) for k in keys}
+
+
+def _unpack_values(packed: dict[int, np.ndarray]) -> gtsam.VectorValues:
+    out = gtsam.VectorValues()
+    for k, v in packed.items():
+        out.insert(k, v)
+    return out
+
+
+class PartWorker:
+    """The parts of one group on a Dask worker (an actor: it keeps their eliminations between a
+    step's two halves, as Bayes trees do not pickle): the same :func:`_reduce` and
+    :func:`_back_substitute` as the local processes, on the parts' factors sent to it."""
+
+    def __init__(self):
+        self.held: dict[int, _Reduced] = {}
+        self.interior: dict[int, np.ndarray] = {}
+
+    def reduce(self, payload: list[tuple]) -> list[tuple[list[str], list[int] | None]]:
+        """``payload``: per part (index, packed factors, interior keys, ordering keys or None)."""
+        out = []
+        for p, packed, interior, order in payload:
+            self.interior[p] = np.asarray(interior, np.uint64)
+            self.held[p] = _reduce(_unpack(packed), self.interior[p], _ordering_of(order))
+            out.append((_pack(self.held[p].reduced), None if order is not None else _ordering_keys(self.held[p].ordering)))
+        return out
+
+    def back_substitute(self, given: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+        return _back_substitute(self.held, self.interior, list(self.held), _unpack_values(given))
+
+
 def _eliminate_all(graph: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
     try:
         return graph.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(graph), gtsam.EliminateQR)
@@ -215,6 +296,22 @@ def _union(graphs) -> gtsam.GaussianFactorGraph:
     for g in graphs:
         out.push_back(g)
     return out
+
+
+#: length [s] of the parts the sigma columns of a one-batch solve are computed in (module
+#: docstring): a fixed length, so that they do not depend on the machine
+MARGINAL_PART_S = 600.0
+
+
+def part_marginals(partition: Partition, gfg: gtsam.GaussianFactorGraph) -> "PartMarginals":
+    """The marginals of linearised graph ``gfg`` computed in the parts of ``partition`` (each
+    part reduced here as :meth:`PartitionedSolver.solve` reduces it; no step is solved). With
+    one part, that part's tree is the whole graph's."""
+    layout = partition.layout(gfg)
+    if partition.count == 1:
+        return PartMarginals(gfg, [gtsam.GaussianFactorGraph()], layout)
+    return PartMarginals(gfg, [_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced
+                               for p in range(partition.count)], layout)
 
 
 class PartitionedSolver:
@@ -258,15 +355,13 @@ class PartitionedSolver:
             return _eliminate_all(_union(g for group in reduced for g, _ in group)).optimize()
 
         def back_substitute(group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
-            out = {}
-            for p in group:
-                if held[p].net is not None:
-                    sol = held[p].net.optimize(given)
-                    out.update((int(k), sol.at(int(k))) for k in interior[p])
-            return out
+            return _back_substitute(held, interior, group, given)
 
-        separator, reduced, steps = run_step(groups_of(self.partition.count, self.workers), reduce,
-                                             solve_separator, back_substitute)
+        groups = groups_of(self.partition.count, self.workers)
+        if self.partition.engine == "dask":
+            separator, reduced, steps = self._dask_step(gfg, layout, groups, solve_separator)
+        else:
+            separator, reduced, steps = run_step(groups, reduce, solve_separator, back_substitute)
         flat = [item for group in reduced for item in group]
         for p, (_, ordering) in enumerate(flat):
             if ordering is not None:
@@ -276,6 +371,22 @@ class PartitionedSolver:
             for k, v in step.items():
                 delta.insert(k, v)
         return delta, PartMarginals(gfg, [g for g, _ in flat], layout)
+
+
+    def _dask_step(self, gfg: gtsam.GaussianFactorGraph, layout: Layout, groups: list[list[int]], solve_separator):
+        """:meth:`solve`'s step on Dask workers (:class:`PartWorker`): each group's factors
+        sent packed, its reduced factors and new orderings back, unpacked here once."""
+        client = dask_client(self.partition.address, self.workers)
+        payloads = [[(p, _pack(layout.part_graph(gfg, p)), layout.interior[p].tolist(),
+                      _ordering_keys(self._orderings.get(p))) for p in g] for g in groups]
+        unpacked: list = []
+
+        def solve(reduced: list[list]) -> gtsam.VectorValues:
+            unpacked.extend([(_unpack(r), _ordering_of(o)) for r, o in group] for group in reduced)
+            return solve_separator(unpacked)
+        separator, _, steps = run_step_dask(client, groups, PartWorker, payloads, solve,
+                                           lambda given: _pack_values(given, layout.separator))
+        return separator, unpacked, steps
 
 
 class PartMarginals:

@@ -7,6 +7,7 @@ written as ``true``/``false`` instead of a mapping (defaults, switched on or off
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Any, Literal
 
 import numpy as np
@@ -233,6 +234,10 @@ class SmootherSettings(StrictModel):
     ``part_s``: each Gauss-Newton step is solved in time parts of this duration
     (fusion/partitioned.py: the one-batch answer, to rounding; at least 10 s); null: in one piece.
 
+    ``engine``: where the parts are solved: ``local`` (``workers`` processes of this machine) or
+    ``dask`` (the workers of the Dask scheduler at ``address``, else of a ``distributed.LocalCluster``
+    of ``workers`` processes; needs ``part_s`` and the extra ``[distributed]``). The same numbers.
+
     ``step_tolerance_mm``: the iterations also stop when the correction still to come, predicted
     from the rate at which the steps shrink, is below this (fusion/convergence.py); 0: off.
     """
@@ -245,6 +250,19 @@ class SmootherSettings(StrictModel):
     overlap_s: float = Field(120.0, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
     part_s: float | None = Field(None, ge=10.0)
+    engine: Literal["local", "dask"] = "local"
+    address: str | None = None
+
+    @model_validator(mode="after")
+    def _dask_engine(self) -> "SmootherSettings":
+        if self.address is not None and self.engine != "dask":
+            raise ValueError("address: only with engine: dask")
+        if self.engine == "dask":
+            if self.part_s is None:
+                raise ValueError("engine: dask needs part_s (the parts are what the Dask workers solve)")
+            if importlib.util.find_spec("distributed") is None:
+                raise ValueError("engine: dask: Dask is not installed (pip install 'trackfusion[distributed]')")
+        return self
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":

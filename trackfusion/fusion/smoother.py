@@ -30,7 +30,8 @@ from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
-from .partitioned import Partition, PartitionedSolver, cut_times
+from ..parallel import dask_client
+from .partitioned import MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, part_marginals
 from .wheel_path import wheel_path_builder
 from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
@@ -576,9 +577,9 @@ def _eliminate(gfg: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering | None =
 @dataclass
 class _Solved:
     """What :func:`gauss_newton` returns: the estimate (``values``, and ``state``: the same as
-    arrays), the iterations, the initial and final cost, and the Bayes tree of the last
-    linearisation (at ``values``, or one converged step before them), which the marginals reuse
-    instead of eliminating once more."""
+    arrays), the iterations, the initial and final cost, and the last linearisation ``gfg``
+    (at ``values``, or one converged step before them) and its Bayes tree, which the marginals
+    reuse instead of linearising once more (:func:`_sigma_marginals`)."""
 
     values: gtsam.Values
     state: _State
@@ -588,6 +589,7 @@ class _Solved:
     tree: gtsam.GaussianBayesTree
     ordering: gtsam.Ordering | None = None
     history: StepHistory = field(default_factory=StepHistory)  # fusion/convergence.py
+    gfg: gtsam.GaussianFactorGraph | None = None
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
@@ -605,9 +607,10 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state, blocks)
     it = 0
     tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, None)
+    gfg = previous.gfg if previous is not None else None
     history = previous.history.copy() if previous is not None else StepHistory()
     if history.converged(step_tol_m):
-        return _Solved(values, state, 0, cost0, cost, tree, ordering, history)
+        return _Solved(values, state, 0, cost0, cost, tree, ordering, history, gfg)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
     for it in range(1, max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state, blocks)
@@ -637,7 +640,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
         if decrease < rtol or history.converged(step_tol_m):
             break
-    return _Solved(values, state, it, cost0, cost, tree, ordering, history)
+    return _Solved(values, state, it, cost0, cost, tree, ordering, history, gfg)
 
 
 def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
@@ -982,10 +985,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         on_solved(key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
 
     tic = time.perf_counter()
-    # the solve's last Bayes tree serves the marginals (linearised at most one converged step
-    # before the estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
+    # the solve's last linearisation serves the marginals (at most one converged step before the
+    # estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
-    tree = _eliminate(gfg) if b.soft.keys else sol.tree
+    tree = _sigma_marginals(problem, sol, gfg if b.soft.keys else None, partition, t_key, bias_seg, seg) \
+        if sigmas else None
     sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
         else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
     hand_over = None
@@ -1021,16 +1025,32 @@ def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Sol
     return components.update(G.builders, G.graph.linearize(values), sol.state, solve_linear, labels)
 
 
-def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None
-               ) -> Partition | None:
-    """The time parts of ``smoother.part_s`` (fusion/partitioned.py), or None: one batch."""
-    part_s = problem.smoother.part_s
+def _sigma_marginals(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
+                     partition: Partition | None, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None):
+    """The marginals behind the sigma columns, exact on a run of any length: of ``gfg`` (a
+    chunk's own marginal graph) or else of the solve's last linearisation, in parts of at most
+    :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole hour's Bayes tree
+    drifts). The solve's own tree when it is that already: a run no longer than one such part,
+    or one solved in parts no longer."""
+    parts = _partition(problem, t_key, bias_seg, seg, MARGINAL_PART_S)
+    if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
+        return sol.tree
+    return _eliminate(gfg) if parts.count == 1 else part_marginals(parts, gfg if gfg is not None else sol.gfg)
+
+
+def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None,
+               part_s: float | None = None) -> Partition | None:
+    """The time parts of ``part_s`` (default ``smoother.part_s``; fusion/partitioned.py), or
+    None: one batch."""
+    part_s = part_s or problem.smoother.part_s
     if part_s is None:
         return None
     cuts = cut_times(float(t_key[0]), float(t_key[-1]), part_s)
+    if problem.smoother.engine == "dask":  # an unreachable scheduler is refused before the solve
+        dask_client(problem.smoother.address, problem.smoother.workers or 1)
     gnss = problem.gnss if problem.factors.gnss.enabled else None
     return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None,
-                     problem.smoother.workers or 1)
+                     problem.smoother.workers or 1, problem.smoother.engine, problem.smoother.address)
 
 
 def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray
