@@ -129,7 +129,7 @@ def pipeline_yaml(sc: TgmsScenario, seed: int) -> str:
     import yaml
     doc = {"name": NAME, "description": f"simulated {NAME} survey (seed {seed})",
            "vision": {"log": "log.mcap", "calibration": "calibration.yaml", "design": "design.csv",
-                      "rail_profile": sc.rail_profile, "gauge_nominal_m": 1.435, "encoder_tick_m": 1e-3,
+                      "rail_profile": sc.rail_profile, "gauge_nominal_m": 1.435,
                       "workers": 2},
            "outputs": {"report": True}}
     return (f"# trackfusion pipeline for the simulated survey {NAME!r} (seed {seed}).\n"
