@@ -34,7 +34,7 @@ def cross_section_figure(frames: list[int], chainage_m: np.ndarray, inputs: dict
     from ..vision.profile_fit import to_profile_frame
     from ..vision.stripe import StripeSettings
     unworn = sample_unworn_mm(head, 0.2)
-    fig = figures._figure(3.2 * len(frames) + 1.2, 6.0)
+    fig = figures._figure(3.4 * len(frames) + 1.2, 6.0)
     axes = np.atleast_2d(figures._panels(fig, 2, len(frames), sharey=True)).reshape(2, len(frames))
     for j, f in enumerate(frames):
         for i, side in enumerate(("left", "right")):
@@ -47,7 +47,8 @@ def cross_section_figure(frames: list[int], chainage_m: np.ndarray, inputs: dict
             ax.set_xlabel("q towards gauge side [mm]", fontsize=8)
             if j == 0:
                 ax.set_ylabel("z [mm]")
-            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_xlim(-40, 40)
+            ax.set_ylim(-32, 3)
     axes[0, 0].legend(fontsize=7, loc="lower left")
     return fig
 
