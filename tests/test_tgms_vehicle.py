@@ -117,3 +117,15 @@ def test_scenario_listed_and_bad_set_refused(tmp_path, capsys):
     assert main(["simulate", "tgms-vehicle", "--out", str(tmp_path / "x"), "--set", "speed_mps=80"]) == 2
     assert main(["simulate", "tgms-vehicle", "--out", str(tmp_path / "x"), "--set", "nonsense=1"]) == 2
     assert not (tmp_path / "x").exists()
+
+
+def test_frames_that_are_not_grey_png_are_refused_before_decoding():
+    from trackfusion.errors import SensorDataError
+    from trackfusion.vision.image_log import frames_of
+    grey = cv2.imencode(".png", np.zeros((4, 6), np.uint8))[1].tobytes()
+    colour = cv2.imencode(".png", np.zeros((4, 6, 3), np.uint8))[1].tobytes()
+    frames = frames_of([grey, grey], "log.mcap: /camera/left/image")
+    assert frames.shape == (2, 4, 6) and frames[0:2].shape == (2, 4, 6)
+    for bad in ([grey, b"not a png"], [grey, colour]):
+        with pytest.raises(SensorDataError, match="/camera/left/image"):
+            frames_of(bad, "log.mcap: /camera/left/image")

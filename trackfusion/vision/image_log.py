@@ -29,6 +29,58 @@ def image_topic(side: str) -> str:
     return f"/camera/{side}/image"
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+class PngFrames:
+    """F grey PNG images of one camera, decoded (``cv2.imdecode``) only when sliced: ``frames[a:b]``
+    is the (b - a, H, W) uint8 array, ``frames[i]`` one (H, W) image. The per-frame measurement
+    slices batches, so with forked workers each process decodes its own frames (decoding costs
+    as much CPU as measuring) and the run never holds every decoded image. ``shape``, ``ndim``
+    and ``dtype`` are those of the decoded stack, read from the PNG headers."""
+
+    ndim, dtype = 3, np.dtype(np.uint8)
+
+    def __init__(self, pngs: list[bytes], height_px: int, width_px: int, name: str):
+        self.pngs, self.shape, self.name = pngs, (len(pngs), height_px, width_px), name
+
+    def __len__(self) -> int:
+        return len(self.pngs)
+
+    def _decode(self, i: int) -> np.ndarray:
+        img = cv2.imdecode(np.frombuffer(self.pngs[i], np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None or img.shape != self.shape[1:] or img.dtype != np.uint8:
+            raise SensorDataError(f"{self.name}: frame {i}: the PNG does not decode to its header's grey image")
+        return img
+
+    def __getitem__(self, key):
+        if isinstance(key, slice):
+            idx = range(*key.indices(len(self)))
+            out = np.empty((len(idx), *self.shape[1:]), np.uint8)
+            for j, i in enumerate(idx):
+                out[j] = self._decode(i)
+            return out
+        return self._decode(int(key))
+
+
+def png_header(data: bytes) -> tuple[int, int, int, int] | None:
+    """(width, height, bit depth, colour type) of a PNG's IHDR chunk, None when not a PNG."""
+    if len(data) < 26 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        return None
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big"), data[24], data[25]
+
+
+def frames_of(pngs: list[bytes], name: str) -> PngFrames:
+    """The PNG frames of one channel, their headers checked: 8-bit grey, all of one size."""
+    heads = {png_header(d) for d in pngs}
+    if None in heads:
+        raise SensorDataError(f"{name}: a message is not a PNG image")
+    if len(heads) != 1 or next(iter(heads))[2:] != (8, 0):
+        raise SensorDataError(f"{name}: frames must be 8-bit grey PNG images of one size, found {sorted(heads)}")
+    w, h, _, _ = next(iter(heads))
+    return PngFrames(pngs, h, w, name)
+
+
 def _descriptor_set() -> bytes:
     """The FileDescriptorSet of ``foxglove.CompressedImage`` and the files it imports."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -95,9 +147,9 @@ def write_vision_log(path: str | Path, t_imu_s: np.ndarray, gyro_b: np.ndarray, 
 
 def read_vision_log(path: str | Path, sides: tuple[str, ...] = ("left", "right")) -> dict:
     """Read a vision log: ``t_imu_s`` (N,), ``gyro_b``, ``accel_b`` (N, 3), ``encoder_m`` (N,),
-    and per side ``t_frame_s`` (F,) and ``images`` (F, H, W) uint8 (PNG decoded by OpenCV).
+    ``t_frame_s`` (F,) and per side ``images`` (:class:`PngFrames`, decoded when sliced).
     Raises :class:`SensorDataError` naming the file and topic for a missing channel, an image
-    that is not a decodable PNG, or frames of the two cameras not at the same times."""
+    that is not an 8-bit grey PNG, or frames of the two cameras not at the same times."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
     from mcap.reader import make_reader
     p = Path(path)
@@ -115,12 +167,11 @@ def read_vision_log(path: str | Path, sides: tuple[str, ...] = ("left", "right")
                 t_odo.append(message.log_time)
             elif channel.topic in topics:
                 msg = CompressedImage.FromString(message.data)
-                img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_GRAYSCALE) \
-                    if msg.format == "png" else None
-                if img is None:
-                    raise SensorDataError(f"{p}: {channel.topic}: message {message.sequence} is not a decodable PNG")
+                if msg.format != "png":
+                    raise SensorDataError(f"{p}: {channel.topic}: message {message.sequence}: format "
+                                          f"{msg.format!r}, expected 'png'")
                 frames[topics[channel.topic]][0].append(message.log_time)
-                frames[topics[channel.topic]][1].append(img)
+                frames[topics[channel.topic]][1].append(msg.data)
     for topic, got in ((IMU_TOPIC, imu), (ODOMETER_TOPIC, odo), *((t, frames[s][1]) for t, s in topics.items())):
         if not got:
             raise SensorDataError(f"{p}: {topic}: no messages (a vision log needs the IMU, the encoder and both cameras)")
@@ -132,4 +183,4 @@ def read_vision_log(path: str | Path, sides: tuple[str, ...] = ("left", "right")
     a = np.asarray(imu, float)
     return {"t_imu_s": np.asarray(t_imu, np.int64) * 1e-9, "gyro_b": a[:, :3], "accel_b": a[:, 3:],
             "encoder_m": np.asarray(odo, float), "t_frame_s": t_frames[0] * 1e-9,
-            "images": {s: np.stack(frames[s][1]) for s in sides}}
+            "images": {s: frames_of(frames[s][1], f"{p}: {image_topic(s)}") for s in sides}}

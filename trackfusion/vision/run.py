@@ -220,12 +220,23 @@ def process(inputs: dict, cfg: VisionPipelineConfig, say: Callable[[str], None])
     return table, vision_metrics(cfg, log, mo, m, table, timings), m, mo
 
 
+@dataclass
+class VisionRunResult:
+    """What a vision run produced, as :class:`trackfusion.pipeline.RunResult` names it (the
+    geometry table stands for the trajectory; there is no smoother)."""
+
+    out_dir: Path
+    files: list[str]
+    metrics: dict[str, Any]
+    trajectory: dict[str, np.ndarray]
+    smoother: None = None
+
+
 def run_vision(p: VisionPipeline, out_dir: str | Path | None = None,
                progress: Callable[[str], None] | None = None, force: bool = False):
     """Run the vision pipeline ``p`` into ``out_dir`` (default ``out/`` beside the YAML):
     checked and locked first, inputs read and checked before computing, outputs staged."""
     from ..outdir import OutputFolder
-    from ..pipeline import RunResult
     from ..sensors.fileio import write_csv_table, write_json_atomic
     say = progress or (lambda _m: None)
     out = Path(out_dir) if out_dir is not None else p.base_dir / "out"
@@ -248,7 +259,7 @@ def run_vision(p: VisionPipeline, out_dir: str | Path | None = None,
                                     rail_head(p.config.vision.rail_profile))
             files = sorted(x.name for x in stage.iterdir())
     say(f"[{p.config.name}] done: {folder.path}/")
-    return RunResult(folder.path, files, metrics, table, None)
+    return VisionRunResult(folder.path, files, metrics, table)
 
 
 def format_vision_summary(result) -> str:
