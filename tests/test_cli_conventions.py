@@ -29,7 +29,7 @@ def test_version_and_python_dash_m():
 def test_simulate_list_names_every_scenario(capsys):
     assert main(["simulate", "--list"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in out] == available_scenarios()
+    assert [line.split()[0] for line in out] == available_scenarios() + ["tgms-vehicle"]  # + the vision survey
     assert all(len(line.split(None, 1)) == 2 for line in out)  # each with its description
 
 

@@ -22,6 +22,13 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         return 0
     if args.scenario is None or args.out is None:
         raise ConfigError("simulate: give a scenario and --out FOLDER (scenarios: 'trackfusion simulate --list')")
+    if args.scenario == "tgms-vehicle":  # a vision survey: simulation/tgms_vehicle.py
+        from .simulation.tgms_vehicle import simulate_tgms_to_dir
+        if args.ideal:
+            raise ConfigError("simulate tgms-vehicle: --ideal is not supported (the images carry their noise)")
+        print(simulate_tgms_to_dir(args.out, seed=args.seed, overrides=args.set or [], progress=_progress,
+                                   force=args.force))
+        return 0
     result = simulate_to_dir(args.scenario, args.out, seed=args.seed, ideal=args.ideal,
                              overrides=args.set or [], progress=_progress, force=args.force)
     print(result.format())
@@ -151,7 +158,8 @@ def _write_json(target, obj) -> None:
 
 def _scenario_list() -> str:
     from .simulation.config import scenario_descriptions
-    rows = scenario_descriptions()
+    from .simulation.tgms_vehicle import DESCRIPTION, NAME
+    rows = {**scenario_descriptions(), NAME: DESCRIPTION}
     width = max(len(n) for n in rows)
     return "\n".join(f"{n:<{width}}  {d}" for n, d in rows.items())
 

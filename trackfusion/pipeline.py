@@ -243,7 +243,11 @@ def load_pipeline(path: str | os.PathLike) -> Pipeline:
     if not p.is_file():
         raise ConfigError(f"{p}: pipeline file not found")
     from .yamlio import load_yaml
-    return parse_pipeline(load_yaml(p, "pipeline file"), str(p), p.resolve().parent)
+    from .vision.run import is_vision_pipeline, parse_vision_pipeline
+    data = load_yaml(p, "pipeline file")
+    if is_vision_pipeline(data):  # a camera-laser survey (docs/vision.md): vision/run.py
+        return parse_vision_pipeline(data, str(p), p.resolve().parent)
+    return parse_pipeline(data, str(p), p.resolve().parent)
 
 
 
@@ -583,6 +587,9 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     it is checked and locked before anything is read (:class:`~trackfusion.outdir.OutputFolder`;
     ``force``: write beside files trackfusion did not write)."""
     from .outdir import OutputFolder
+    from .vision.run import VisionPipeline, run_vision
+    if isinstance(pipeline, VisionPipeline):
+        return run_vision(pipeline, out_dir, progress, force)
     out = Path(out_dir) if out_dir is not None else pipeline.base_dir / "out"
     folder = OutputFolder(out, force, inputs=input_paths(pipeline), command="trackfusion run", writes=RUN_FILES)
     with folder.locked():
@@ -798,6 +805,9 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
 def format_summary(result: RunResult) -> str:
     """A few lines for the terminal: files, sizes, timings and, with a reference, accuracy."""
     m = result.metrics
+    if "vision" in m:
+        from .vision.run import format_vision_summary
+        return format_vision_summary(result)
     t = m["timings_s"]
     lines = [f"wrote {', '.join(result.files)} to {result.out_dir}/",
              f"  {m['imu_samples']} IMU samples, {m['duration_s']:.0f} s, {m['keyframes']} keyframes, "

@@ -251,14 +251,16 @@ def _track_series(s_m: np.ndarray, rms: float, corr_m: float, rng: np.random.Gen
 def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate_hz: float = 250.0,
                  gauge_nominal_m: float = 1.435, lateral_peak_m: float = 5e-3,
                  vertical_peak_m: float = 10e-3, roll_peak_rad: float = np.radians(0.5),
-                 wear: dict | None = None, alignment_rms_m: float = 1.5e-3, seed: int = 1) -> VisionRun:
+                 wear: dict | None = None, alignment_rms_m: float = 1.5e-3, seed: int = 1,
+                 truth_frames: slice = slice(None)) -> VisionRun:
     """Truth of a run: the measuring frame on the bogie moving relative to the track (lateral
     mode at 1.2 Hz, bounce at 3.5 Hz, roll at 1.0 Hz, each with a peak about 2.5 rms), a track
     with gauge variation (rms 1 mm) and cross-level (rms 1.5 mm) of wavelengths above ~5 m, a
     centreline alignment and vertical profile (rms ``alignment_rms_m`` each, wavelengths above
     ~2 m; the measuring frame follows them, the rails carry them), and optional wear:
     ``wear = {"start_m", "end_m", "vertical_mm", "side_mm", "side_rail"}``
-    (both rails lose the vertical wear, ``side_rail`` the side wear; 5 m ramps)."""
+    (both rails lose the vertical wear, ``side_rail`` the side wear; 5 m ramps). The true gauge
+    is computed for ``truth_frames`` only (NaN elsewhere: an IMU lead-in nobody films)."""
     if n_frames < 2 or speed_mps <= 0 or rate_hz <= 0:
         raise SimulationError("vision run needs n_frames >= 2, speed > 0 and a frame rate > 0")
     rng = np.random.default_rng(seed)
@@ -288,7 +290,10 @@ def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate
     R_back = rot2(-roll_rel)                      # track -> vehicle
     origin_v = {k: np.einsum("fij,fj->fi", R_back, origin_t[k] - r) for k in SIDE_SIGN}
     roll_v = {k: roll_t[k] - roll_rel for k in SIDE_SIGN}
-    gauge, cross = true_gauge_and_cross_level(head, origin_t, roll_t, vw, sw)
+    cut = lambda x: {k: v[truth_frames] for k, v in x.items()}  # noqa: E731
+    gauge = np.full(n_frames, np.nan)
+    gauge[truth_frames], _ = true_gauge_and_cross_level(head, cut(origin_t), cut(roll_t), cut(vw), cut(sw))
+    cross = origin_t["left"][:, 1] - origin_t["right"][:, 1]
     return VisionRun(t, s, y_rel, z_rel, roll_rel, vw, sw, gauge, cross, origin_v, roll_v, al, vp)
 
 

@@ -217,7 +217,8 @@ def check_inputs(units: dict, images: dict, roll_rad: np.ndarray) -> None:
             raise VisionError(f"vision: no {side} {'unit' if side not in units else 'images'}")
         img = images[side]
         cam = units[side].camera
-        if not (isinstance(img, np.ndarray) and img.ndim == 3 and img.dtype == np.uint8):
+        # an array, or frames decoded batch by batch when sliced (vision/image_log.py: PngFrames)
+        if not (getattr(img, "ndim", 0) == 3 and getattr(img, "dtype", None) == np.uint8):
             raise VisionError(f"vision: {side} images: expected an (F, H, W) uint8 array")
         if img.shape[1:] != (cam.height_px, cam.width_px):
             raise VisionError(f"vision: {side} images: {img.shape[2]} x {img.shape[1]} px, "
