@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
@@ -33,6 +33,7 @@ from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings,
 from .fusion.densify_forked import start_densify_forked
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
+from .geometry_inputs import check_geometry_inputs, geometry_for_run
 from .forked import ForkedTasks, can_fork as can_fork_tasks
 from .output_prefetch import OutputPrefetch
 from .registration.stations import StationSetupConfig
@@ -42,17 +43,14 @@ from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
 from .sensor_use import decide_sensor_use, summary_lines as sensor_summary_lines
 from .sensors.types import InclinometerData, OdometerData, SensorLog
+from .strict import StrictModel
 from .track.geometry import GeometryConfig
 from .vehicles import MAX_SPEED_MPS, TrolleyVehicle, VehicleConfig, error_location, frame_of, vehicle_section
 
 Vec3 = tuple[float, float, float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
-
-
-class TopicsConfig(_Strict):
+class TopicsConfig(StrictModel):
     """The ROS 2 bag topic of each role (docs/log_format.md, "ROS 2 bags"); a role not named
     is found as the bag's only topic of a supported type."""
 
@@ -61,7 +59,7 @@ class TopicsConfig(_Strict):
     odometer: str | None = None
 
 
-class InputsConfig(_Strict):
+class InputsConfig(StrictModel):
     """``log``: the raw MCAP log or a ROS 2 bag (MCAP, ``.db3``, rosbag2 folder);
     ``reference``: optional truth/reference trajectory CSV to evaluate against;
     ``allow_truncated``: run on the readable part of a damaged log; ``design``: optional design
@@ -84,7 +82,7 @@ class InputsConfig(_Strict):
         return value
 
 
-class OriginConfig(_Strict):
+class OriginConfig(StrictModel):
     lat_deg: float = Field(ge=-90, le=90)
     lon_deg: float = Field(ge=-180, le=360)
     h_m: float = 0.0
@@ -119,7 +117,7 @@ class ImuConfig(ImuSpec):
         return data
 
 
-class ClockConfig(_Strict):
+class ClockConfig(StrictModel):
     """``clock_offset_s``: the sensor's clock minus the IMU clock (t_sensor = t_imu + offset)."""
 
     clock_offset_s: float = 0.0
@@ -129,7 +127,7 @@ class GnssConfig(ClockConfig):
     lever_arm_b_m: Vec3
 
 
-class TotalStationsConfig(_Strict):
+class TotalStationsConfig(StrictModel):
     """Robotic total stations (docs/total_stations.md): the prism lever arm in ``b``; each
     station's set-up (given, or resected from ``control_points`` in ``n``); the instrument's
     precision (angles, distance ``sigma + ppm``) and refraction coefficient; and the priors of
@@ -149,7 +147,7 @@ class TotalStationsConfig(_Strict):
     clock_drift_sigma_ppm: float = Field(5.0, gt=0)
 
 
-class SensorsConfig(_Strict):
+class SensorsConfig(StrictModel):
     imu: ImuConfig
     odometer: ClockConfig | None = None
     gnss: GnssConfig | None = None
@@ -157,7 +155,7 @@ class SensorsConfig(_Strict):
     total_stations: TotalStationsConfig | None = None
 
 
-class OutputsConfig(_Strict):
+class OutputsConfig(StrictModel):
     """``trajectory_rate_hz``: rows per second of trajectory.csv (at most the IMU rate; the
     nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log;
     ``report``: write report.html (docs/report.md)."""
@@ -168,7 +166,7 @@ class OutputsConfig(_Strict):
     report: bool = True
 
 
-class PipelineConfig(_Strict):
+class PipelineConfig(StrictModel):
     name: str = "survey"
     description: str = ""
     inputs: InputsConfig
@@ -257,7 +255,6 @@ def _check_inputs(pipeline: Pipeline) -> None:
     if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is None:
         raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
                           "or set factors.total_stations: false)")
-    from .track.geometry import check_geometry_inputs
     from .vehicles import check_vehicle_support
     check_vehicle_support(cfg, src)  # factors and geometry the vehicle's kind supports
     check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
@@ -683,7 +680,6 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         if survey is not None:
             metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
         # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
-        from .track.geometry import geometry_for_run
         tic_geometry = time.perf_counter()
         if cfg.geometry.enabled:
             say("computing the track geometry")
