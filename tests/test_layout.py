@@ -29,11 +29,6 @@ ALLOWED_CYCLES = {
 
 #: (module, imported module) edges that close a cycle between core packages, and why
 ALLOWED_PACKAGE_EDGES = {
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.smoother"):
-        "the two-stage total-station solve (measured worse than the joint solve; deleted once pipeline.py, "
-        "fusion/smoother.py and fusion/problem.py, concurrent work, stop using it)",
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.factors"): "as above",
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.problem"): "as above",
     # the registration's own types live in fusion files of concurrent work: PrismReadings
     # (fusion/problem.py) and PRISM_GAP_MIN_S (fusion/faults.py) should move to registration/
     ("trackfusion.registration.survey", "trackfusion.fusion.problem"): "PrismReadings",

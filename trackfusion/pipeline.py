@@ -226,13 +226,18 @@ class _UserPaths:
 
 #: keys that went away, and what replaced them (docs/pipeline.md "Removed keys")
 REMOVED_KEYS = {("smoother", "slow_priors"): "the parallel segments it gave priors to are gone: "
-                                            "smoother.part_s solves the run in exact time parts"}
+                                            "smoother.part_s solves the run in exact time parts",
+                ("factors", "total_stations", "solve"): "the joint solve replaced the two-stage one: "
+                                                        "the stations are estimated with the whole trajectory"}
 
 
 def _refuse_removed_keys(data: dict, source: str) -> None:
-    for (section, key), why in REMOVED_KEYS.items():
-        if isinstance(data.get(section), dict) and key in data[section]:
-            raise ConfigError(f"{source}: {section}.{key}: removed; {why}")
+    for path, why in REMOVED_KEYS.items():
+        node = data
+        for key in path[:-1]:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict) and path[-1] in node:
+            raise ConfigError(f"{source}: {'.'.join(path)}: removed; {why}")
 
 
 def load_pipeline(path: str | os.PathLike) -> Pipeline:
@@ -517,12 +522,8 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
 def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
                   on_solved: Callable[..., None] | None = None,
                   preintegrated: Preintegrated | None = None) -> SmootherResult:
-    """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
-    (registration/two_stage.py), anything else by :func:`smooth` (``on_solved``, ``preintegrated``:
-    see there)."""
-    from .registration.two_stage import smooth_two_stage, uses_two_stage
-    return (smooth_two_stage(problem, progress=say, on_solved=on_solved, preintegrated=preintegrated)
-            if uses_two_stage(problem) else smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated))
+    """One batch by :func:`smooth` (``on_solved``, ``preintegrated``: see there)."""
+    return smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated)
 
 
 def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],

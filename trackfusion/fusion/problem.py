@@ -124,9 +124,6 @@ class PrismReadings:
     (fusion/factors.py ``STATION_STATE_DIM``: rotation [rad] (3, in ``n``), translation [m] (3),
     clock offset [s], clock drift [ppm]) about zero. flagged (N,) bool or None: readings left out
     of the fusion before it (issue 8: the step check's mis-locks, registration/steps.py).
-    fixed_states (J,8) or None: when given, the stations are held at these corrections (no
-    station states in the graph: a chain, as fast as a GNSS run; registration/two_stage.py
-    estimates them first), see :attr:`stations_fixed`.
     """
 
     t_s: np.ndarray
@@ -138,13 +135,7 @@ class PrismReadings:
     lever_arm_b: np.ndarray
     prior_sigma: np.ndarray
     flagged: np.ndarray | None = None
-    fixed_states: np.ndarray | None = None
 
     def usable(self) -> np.ndarray:
         """Indices (M,) of the readings not flagged before the fusion."""
         return np.arange(self.t_s.size) if self.flagged is None else np.flatnonzero(~self.flagged)
-
-    @property
-    def stations_fixed(self) -> bool:
-        """True when the station corrections are held at ``fixed_states`` (not estimated)."""
-        return self.fixed_states is not None
