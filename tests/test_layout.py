@@ -21,19 +21,10 @@ CORE = ("fusion", "registration", "track", "evaluation")
 PURE = ("fusion", "registration", "track")
 
 #: import cycles still present (each a frozenset of modules) and why
-ALLOWED_CYCLES = {
-    # sensor_use.py needs pipeline.ClockConfig (pipeline.py is concurrent work): ClockConfig
-    # should move beside decide_sensor_use
-    frozenset({"trackfusion.pipeline", "trackfusion.sensor_use"}): "sensor_use.py imports pipeline.ClockConfig",
-}
+ALLOWED_CYCLES: dict[frozenset[str], str] = {}
 
 #: (module, imported module) edges that close a cycle between core packages, and why
-ALLOWED_PACKAGE_EDGES = {
-    # the registration's own types live in fusion files of concurrent work: PrismReadings
-    # (fusion/problem.py) and PRISM_GAP_MIN_S (fusion/faults.py) should move to registration/
-    ("trackfusion.registration.survey", "trackfusion.fusion.problem"): "PrismReadings",
-    ("trackfusion.registration.clock_jumps", "trackfusion.fusion.faults"): "PRISM_GAP_MIN_S",
-}
+ALLOWED_PACKAGE_EDGES: dict[tuple[str, str], str] = {}
 
 #: (module, imported module) of a core module importing pipeline or report, and why
 ALLOWED_CORE_IMPORTS: dict[tuple[str, str], str] = {}

@@ -41,7 +41,7 @@ from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
-from .sensor_use import decide_sensor_use, summary_lines as sensor_summary_lines
+from .sensor_use import ClockConfig, decide_sensor_use, summary_lines as sensor_summary_lines
 from .sensors.types import InclinometerData, OdometerData, SensorLog
 from .strict import StrictModel
 from .track.geometry import GeometryConfig
@@ -115,12 +115,6 @@ class ImuConfig(ImuSpec):
                 raise ValueError(f"unknown grade {grade!r} (known: {', '.join(IMU_GRADES)})")
             data = {**IMU_GRADES[grade].model_dump(), **data}
         return data
-
-
-class ClockConfig(StrictModel):
-    """``clock_offset_s``: the sensor's clock minus the IMU clock (t_sensor = t_imu + offset)."""
-
-    clock_offset_s: float = 0.0
 
 
 class GnssConfig(ClockConfig):
