@@ -256,7 +256,7 @@ def _check_inputs(pipeline: Pipeline) -> None:
                           "or set factors.total_stations: false)")
     from .vehicles import check_vehicle_support
     check_vehicle_support(cfg, src)  # factors and geometry the vehicle's kind supports
-    check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
+    check_geometry_inputs(pipeline)  # the design file and the tolerance table
     if cfg.factors.gnss.enabled and "gnss" in cfg.factors.model_fields_set and cfg.sensors.gnss is None:
         raise ConfigError(f"{src}: sensors.gnss: missing (needed by factors.gnss; or set factors.gnss: false)")
 
@@ -331,7 +331,7 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     odometer = None
     info: dict[str, Any] = {}
     imu_spec = sensors.imu.spec()
-    # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
+    # --- plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
     src = str(pipeline.path(cfg.inputs.log))
     # the sensors fused: every switched-on factor's topic in the log (trackfusion/sensor_use.py)
     used = decide_sensor_use(cfg, log, pipeline.source, src)
@@ -350,11 +350,11 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     if gnss is not None:
         gnss.t_s, jumps = faults.correct_clock_jumps(gnss.t_s, gnss.pos_n, "/gnss", src, noise=0.05)
         info["clock_jumps"] += jumps
-    # --- end issue 8
+    # --- end of the plausibility checks
     if use_odometer:
         odo = log.odometer
         t = preprocess.sensor_times_to_imu_clock(odo.t_s, clocks["odometer"].clock_offset_s)
-        t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # issue 8
+        t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # odometer clock jumps
         info["clock_jumps"] += jumps
         odometer, repaired = preprocess.repair_odometer(OdometerData(t, odo.distance_m, odo.ticks),
                                                         window=fs.odometer.gross_error_window,
@@ -369,14 +369,14 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(gyro_thr),
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
-    if gnss is not None:  # an IMU cannot tell constant speed from rest; the fixes can (issue 4)
+    if gnss is not None:  # an IMU cannot tell constant speed from rest; the fixes can
         sigma_m = np.sqrt(np.diagonal(gnss.cov_n, axis1=1, axis2=2))
         moving = preprocess.moving_intervals_by_gnss(static, gnss.t_s, gnss.pos_n, sigma_m)
         info["static_intervals_moving_by_gnss_s"] = [[float(a), float(b)] for a, b in (static[i] for i in moving)]
         static = [iv for i, iv in enumerate(static) if i not in moving]
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
     input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
-                                         src)  # issue 8
+                                         src)  # gyro units (rad/s, not deg/s) at rest
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
     imu_noise = estimate_imu_noise(log.imu, static, imu_spec)  # reported beside the datasheet's values
     if imu_noise is not None:
@@ -392,7 +392,7 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     if use_inclinometer:
         inc = log.inclinometer
         t = preprocess.sensor_times_to_imu_clock(inc.t_s, clocks["inclinometer"].clock_offset_s)
-        t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)  # issue 8
+        t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)  # inclinometer clock jumps
         info["clock_jumps"] += jumps
         inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
     problem = FusionProblem(
@@ -423,7 +423,7 @@ def _imu_spec_from_data(spec: ImuSpec, est, tolerance: float) -> tuple[ImuSpec, 
     return (spec.model_copy(update=replaced) if replaced else spec), sorted(replaced)
 
 
-# --- total stations (issue 5) ---------------------------------------------------------------------
+# --- total stations --------------------------------------------------------------------------------
 
 def _prepare_total_stations(pipeline: Pipeline, log: SensorLog, problem: FusionProblem,
                             say: Callable[[str], None]):
@@ -614,7 +614,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
              "odometer_gross_errors": info.get("odometer_gross_errors")}
     problem, survey, preintegrated = _prepare_and_preintegrate(pipeline, log, problem, say)
-    if survey is not None:  # issue 8: total-station clock jumps (registration/clock_jumps.py)
+    if survey is not None:  # total-station clock jumps (registration/clock_jumps.py)
         found["clock_jumps"] += survey.info["clock_jumps"]
     timings["preprocess_s"] = time.perf_counter() - tic
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
@@ -674,7 +674,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
                                    "faults": faults.detected_faults(problem, res, found)}
         if survey is not None:
             metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
-        # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
+        # --- track geometry: geometry.csv and metrics["geometry"] ---
         tic_geometry = time.perf_counter()
         if cfg.geometry.enabled:
             say("computing the track geometry")
@@ -691,7 +691,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         if kept is not None:
             kept.release()  # the geometry's rows, read back for it
         if cfg.inputs.reference is not None:
-            say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
+            say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")
             from .evaluation.reference import compare_with_reference
             metrics.update(compare_with_reference(evaluation_table, pipeline.path(cfg.inputs.reference),
                                                   problem.origin.to_dict(), prefetch.reference()))
@@ -761,7 +761,7 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
     from .sensors.fileio import write_json_atomic
     tic_write = time.perf_counter()  # timings_s.write_s
     write_json_atomic(stage / "metrics.json", metrics)
-    # --- issues 6 and 7: geometry.csv, Foxglove log and report, from the staged files (report last) ---
+    # --- geometry.csv, Foxglove log and report, from the staged files (report last) ---
     if early is None:
         images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
                                      raw, FUSED_POSE_RATE_HZ)
@@ -777,7 +777,7 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
         write_report(stage, stage / "report.html", shown_dir=out, tables=tables, images=images)
     if background is not None:
         background.wait()  # trajectory.csv's rows (renamed into the stage when written)
-    # --- end issues 6 and 7 ---
+    # --- end of the staged outputs ---
     # metrics.json once more, last, with the time the writing took
     timings = metrics.setdefault("timings_s", {})
     timings["write_s"] = time.perf_counter() - tic_write
@@ -804,14 +804,14 @@ def format_summary(result: RunResult) -> str:
         lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals "
                      f"{est[0]:.1f}/{est[2]:.1f} mm (horizontal/vertical; variance factor applied "
                      f"{applied['horizontal']:.2f}/{applied['vertical']:.2f})")
-    if m.get("faults"):  # issue 8: docs/robustness.md
+    if m.get("faults"):  # data faults: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
         lines += faults.summary_lines(m["faults"])
         if "missing_static_period" in m["faults"]:
             miss = m["faults"]["missing_static_period"]
             lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")
-    for sid, ts in m.get("time_sync", {}).items():  # total stations (issue 5)
+    for sid, ts in m.get("time_sync", {}).items():  # total stations
         est = m.get("registration", {}).get("stations", {}).get(sid, {})
         r = f"r_max {ts['r_max']:.3f}" if ts.get("r_max") is not None else "offset given"
         lines.append(f"  station {sid}: clock offset {ts['offset_s']:+.4f} s ({r}), drift {ts['drift_ppm']:+.2f} ppm"

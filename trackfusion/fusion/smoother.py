@@ -143,7 +143,7 @@ def static_mask(t_s: np.ndarray, intervals: list[tuple[float, float]]) -> np.nda
 
 
 def _alignment(problem: FusionProblem) -> Alignment:
-    # start, else end static period, else levelling while moving (issue 8; fusion/alignment.py)
+    # start, else end static period, else levelling while moving (fusion/alignment.py)
     return initial_alignment(problem)
 
 
@@ -349,7 +349,7 @@ class _Builder:
         self.builders.append(("gnss_error", build))
         self._count("gnss_error", used.size)
 
-    # --- total stations (issue 5) ---------------------------------------------------------------
+    # --- total stations --------------------------------------------------------------------------
 
     def prisms(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
         """Factors of the used prism readings (indices into ``problem.prisms``) and one correction
@@ -863,7 +863,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             ok &= gnss.fix_quality != 5
         used = np.flatnonzero(ok)
     rejected: list[dict] = []
-    # issue 8: readings the step check flagged before the fusion are rejected from the start
+    # readings the step check flagged as mis-locks before the fusion are rejected from the start
     prism_used, rejected_prism = prefused_rejections(prisms) if prisms is not None else (None, [])
     tic = time.perf_counter()
     iterations = 0
@@ -897,7 +897,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
-        if prism_build is not None:  # total stations (issue 5): gate, mis-lock runs
+        if prism_build is not None:  # total stations: gate, mis-lock runs
             prism_used, newly = gate_prisms(prism_build(sol.state), prism_used, prisms, fs.total_stations)
             rejected_prism += newly
             newly_rejected = bool(newly)
@@ -1031,7 +1031,7 @@ def _with_prism_fixes(problem: FusionProblem) -> FusionProblem:
     """The problem with its prism readings standing in as position fixes (for the alignment's
     heading and the initial positions only)."""
     from dataclasses import replace
-    pr, ok = problem.prisms, problem.prisms.usable()  # not the step check's mis-locks (issue 8)
+    pr, ok = problem.prisms, problem.prisms.usable()  # not the step check's mis-locks
     fixes = GnssFixes(pr.t_s[ok], pr.pos_n[ok], pr.cov_n[ok], np.full(ok.size, 4), pr.lever_arm_b)
     return replace(problem, gnss=fixes)
 
