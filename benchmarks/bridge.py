@@ -51,11 +51,11 @@ def simulated(seed: int) -> Path:
 OUT_ROOT: Path | None = None
 
 
-def run(sim: Path, registration: str, solve: str = "joint"):
+def run(sim: Path, registration: str):
     from trackfusion.pipeline import parse_pipeline, run as run_pipeline
     data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-    data["factors"]["total_stations"] = {"enabled": True, "registration": registration, "solve": solve}
-    out = (OUT_ROOT / sim.name if OUT_ROOT is not None else sim) / f"out-{registration}-{solve}"
+    data["factors"]["total_stations"] = {"enabled": True, "registration": registration}
+    out = (OUT_ROOT / sim.name if OUT_ROOT is not None else sim) / f"out-{registration}"
     return run_pipeline(parse_pipeline(data, str(sim / "pipeline.yaml"), sim), out)
 
 
@@ -151,8 +151,6 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--variants", action="store_true")
-    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
-                    help="factors.total_stations.solve of the main runs (registration/two_stage.py)")
     ap.add_argument("--out-root", type=Path, default=None,
                     help="write the runs' outputs under this folder (default: beside the cached simulations)")
     ap.add_argument("--results", type=Path, default=RESULTS, help="JSON result file")
@@ -172,7 +170,7 @@ def main() -> None:
         sim = simulated(seed)
         truth = json.loads((sim / "truth.json").read_text())
         load_before, cpu0 = os.getloadavg()[0], cpu_s()
-        f = figures(run(sim, "graph", args.solve).metrics, truth)
+        f = figures(run(sim, "graph").metrics, truth)
         # the run's CPU seconds (this process and its forked workers): less swayed by a shared machine
         f["cpu_s"], f["load_average_1min"] = cpu_s() - cpu0, [load_before, os.getloadavg()[0]]
         c = checks(f)
@@ -193,7 +191,7 @@ def main() -> None:
                 f"{c} max {v['max_abs_mm']:.2f} mean {v['mean_mm']:+.2f} std {v['std_mm']:.2f} mm, "
                 f"slope {v['slope_mm_per_m']:+.2e} mm/m, {v['relative_accuracy_ppm']:.1f} ppm" for c, v in tab.items()))
     variants = run_variants(args.seeds[0]) if args.variants else {}
-    result = {"benchmark": "bridge", "solve": args.solve, "targets": TARGETS, "worst": worst,
+    result = {"benchmark": "bridge", "targets": TARGETS, "worst": worst,
               "met": {k: worst[k] <= TARGETS[k] for k in TARGETS}, "seeds": per_seed, "variants": variants,
               "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()),
               "note": "wall times measured on a machine shared with other jobs"}

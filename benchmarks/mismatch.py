@@ -57,7 +57,7 @@ def draws(seed: int) -> dict[str, float]:
 
 def _overrides(scenario: str, k: dict[str, float], stated_true: bool) -> list[str]:
     from surveys import SHORT_OPEN_TRACK
-    from trackfusion.sensors import aiding
+    from trackfusion.simulation import aiding
     from trackfusion.sensors.imu import IMU_GRADES
     from trackfusion.simulation.config import load_scenario
     cfg = load_scenario(scenario)
@@ -95,7 +95,7 @@ def survey(scenario: str, seed: int, stated_true: bool) -> Path:
 
 def drawn_sigmas(d: Path) -> dict:
     """The drawn noise of the survey in ``d`` in the pipeline's units (from its truth.json)."""
-    from trackfusion.sensors import aiding
+    from trackfusion.simulation import aiding
     from trackfusion.sensors.imu import ImuSpec
     from trackfusion.simulation.config import ScenarioConfig
     from trackfusion.simulation.nhc_sigma import nhc_sigmas_mm_per_s

@@ -9,7 +9,7 @@ tree on the same machine). Reads the log and builds the problem as ``trackfusion
 (not timed), then smooths it with every stage timed in CPU seconds. ``open-track``: the
 simulation of benchmarks/speed.py (``--passes`` round trips, 4: 57 min); ``bridge``: seed 1
 of benchmarks/bridge.py (53 min). Writes benchmarks/results/solver_cpu.json (solver_cpu_bridge.json).
-Bridge: ``--solve`` two_stage (default) or joint, ``--seed``.
+Bridge: ``--seed``.
 Target (speed): the estimation core's share of the 60 s hour, about 25 s on a quiet machine.
 """
 
@@ -25,7 +25,7 @@ from pathlib import Path
 RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
 
 
-def problem(scenario: str, passes: int, solve: str = "joint", seed: int = 1):
+def problem(scenario: str, passes: int, seed: int = 1):
     """The fusion problem of the cached simulation, as ``trackfusion run`` builds it."""
     from trackfusion import pipeline as P
     if scenario == "bridge":
@@ -38,7 +38,7 @@ def problem(scenario: str, passes: int, solve: str = "joint", seed: int = 1):
     if scenario == "bridge":  # as benchmarks/bridge.py runs it
         import yaml
         data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-        data["factors"]["total_stations"] = {"enabled": True, "registration": "graph", "solve": solve}
+        data["factors"]["total_stations"] = {"enabled": True, "registration": "graph"}
         pl = P.parse_pipeline(data, str(sim / "pipeline.yaml"), sim)
     log, _ = P._read(pl)
     prob, _ = P.build_problem(pl, log, lambda _m: None)
@@ -50,8 +50,6 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=4)
     ap.add_argument("--scenario", choices=["open-track", "bridge"], default="open-track")
     ap.add_argument("--out", type=Path, default=None, help="JSON result file (default: results/solver_cpu[_bridge].json)")
-    ap.add_argument("--solve", choices=["joint", "two_stage"], default="joint",
-                    help="bridge: factors.total_stations.solve (registration/two_stage.py)")
     ap.add_argument("--seed", type=int, default=1, help="bridge: the seed of benchmarks/bridge.py")
     ap.add_argument("--densify", action="store_true", help="one batch: time the densification too")
     ap.add_argument("--part-s", type=float, default=None,
@@ -59,19 +57,18 @@ def main() -> None:
     ap.add_argument("--wheel-path", choices=["on", "off"], default=None,
                     help="switch factors.wheel_path on or off (default: as the pipeline.yaml; docs/wheel_path.md)")
     args = ap.parse_args()
-    prob = problem(args.scenario, args.passes, args.solve, args.seed)
+    prob = problem(args.scenario, args.passes, args.seed)
     if args.wheel_path is not None:
         wheel = prob.factors.wheel_path.model_copy(update={"enabled": args.wheel_path == "on"})
         prob = replace(prob, factors=prob.factors.model_copy(update={"wheel_path": wheel}))
     from trackfusion.fusion import smoother
     if args.part_s is not None:
         prob = replace(prob, smoother=prob.smoother.model_copy(update={"part_s": args.part_s}))
-    from trackfusion.registration.two_stage import smooth_two_stage, uses_two_stage
     wall, cpu = time.perf_counter(), time.process_time()
     real_clock = time.perf_counter
     time.perf_counter = time.process_time  # the smoother's own stage timings, in CPU seconds
     try:
-        res = smooth_two_stage(prob) if uses_two_stage(prob) else smoother.smooth(prob)
+        res = smoother.smooth(prob)
         if args.densify:
             tic = time.process_time()
             densify_rows(prob, res)
@@ -84,7 +81,7 @@ def main() -> None:
         "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                  cwd=Path(__file__).parent).stdout.strip(),
         "date": time.strftime("%Y-%m-%d %H:%M"), "scenario": args.scenario,
-        **({"seed": args.seed, "solve": args.solve} if args.scenario == "bridge" else {}),
+        **({"seed": args.seed} if args.scenario == "bridge" else {}),
         "imu_samples": int(prob.imu.t_s.size), "keyframes": int(res.t_s.size),
         "factors": sum(res.factor_counts.values()), "iterations": res.iterations,
         "final_cost": res.final_cost, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2), "cpu_stages_s": stages,

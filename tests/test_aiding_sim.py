@@ -9,7 +9,7 @@ import pytest
 from trackfusion import geodesy
 from trackfusion.errors import SimulationError
 from trackfusion.registration.polar import StationSetup, n_to_polar, polar_to_n
-from trackfusion.sensors import aiding
+from trackfusion.simulation import aiding
 
 ORIGIN = geodesy.Origin(22.93, 112.87, 25.0)
 ARCSEC = np.pi / 180 / 3600

@@ -21,40 +21,18 @@ CORE = ("fusion", "registration", "track", "evaluation")
 PURE = ("fusion", "registration", "track")
 
 #: import cycles still present (each a frozenset of modules) and why
-ALLOWED_CYCLES = {
-    # transitional lazy aliases for importers in files of concurrent work (simulation/scenarios.py,
-    # simulation/nhc_sigma.py, pipeline.py): they go once those import from the new homes
-    frozenset({"trackfusion.sensors.imu", "trackfusion.simulation.imu"}):
-        "sensors/imu.py aliases simulate_imu for simulation/scenarios.py",
-    frozenset({"trackfusion.track.irregularity", "trackfusion.simulation.irregularity"}):
-        "track/irregularity.py aliases IrregularitySpec, synthesize for simulation/scenarios.py, nhc_sigma.py",
-    frozenset({"trackfusion.track.geometry", "trackfusion.geometry_inputs"}):
-        "track/geometry.py aliases check_geometry_inputs, geometry_for_run for pipeline.py",
-    # sensor_use.py needs pipeline.ClockConfig (pipeline.py is concurrent work): ClockConfig
-    # should move beside decide_sensor_use
-    frozenset({"trackfusion.pipeline", "trackfusion.sensor_use"}): "sensor_use.py imports pipeline.ClockConfig",
-}
+ALLOWED_CYCLES: dict[frozenset[str], str] = {}
 
 #: (module, imported module) edges that close a cycle between core packages, and why
-ALLOWED_PACKAGE_EDGES = {
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.smoother"):
-        "the two-stage total-station solve (measured worse than the joint solve; deleted once pipeline.py, "
-        "fusion/smoother.py and fusion/problem.py, concurrent work, stop using it)",
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.factors"): "as above",
-    ("trackfusion.registration.two_stage", "trackfusion.fusion.problem"): "as above",
-    # the registration's own types live in fusion files of concurrent work: PrismReadings
-    # (fusion/problem.py) and PRISM_GAP_MIN_S (fusion/faults.py) should move to registration/
-    ("trackfusion.registration.survey", "trackfusion.fusion.problem"): "PrismReadings",
-    ("trackfusion.registration.clock_jumps", "trackfusion.fusion.faults"): "PRISM_GAP_MIN_S",
-}
+ALLOWED_PACKAGE_EDGES: dict[tuple[str, str], str] = {}
 
 #: (module, imported module) of a core module importing pipeline or report, and why
 ALLOWED_CORE_IMPORTS: dict[tuple[str, str], str] = {}
 
 #: modules outside simulation/ that draw random numbers, and why
 ALLOWED_RANDOM: dict[str, str] = {
-    "trackfusion.fusion.noise_components": "Hutchinson probes of the redundancy trace, a fixed seed: a "
-    "numerical estimator's right-hand sides, not simulated data (the same numbers on every run)",
+    "trackfusion.fusion.noise_components": "the Hutchinson redundancy estimate's probe vectors (a fixed seed: "
+                                           "the same answer on every run), not simulated data",
 }
 
 #: (module, call) of file I/O in the pure core, and why
@@ -198,7 +176,7 @@ def test_the_cycle_finder_finds_a_cycle():
 def test_the_import_reader_resolves_relative_and_lazy_imports():
     assert "trackfusion.simulation.noise" in GRAPH["trackfusion.simulation.aiding"]  # from . import noise
     assert "trackfusion.registration.polar" in GRAPH["trackfusion.simulation.aiding"]  # from ..registration.polar
-    assert "trackfusion.simulation.imu" in GRAPH["trackfusion.sensors.imu"]  # inside a function
+    assert "trackfusion.simulation.scenarios" in GRAPH["trackfusion.cli"]  # inside a function
 
 
 def test_no_import_cycles():

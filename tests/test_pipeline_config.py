@@ -83,3 +83,16 @@ def test_bool_shorthand_and_relative_paths(tmp_path):
     p = load_pipeline(sub / "p.yaml")
     assert p.config.factors.nhc.enabled is False and p.config.factors.nhc.sigma_mm_per_s == 1.0
     assert p.path(p.config.inputs.log) == sub.resolve() / "log.mcap"
+
+
+def test_the_removed_two_stage_solve_key_is_refused_in_one_line(tmp_path):
+    from trackfusion.errors import ConfigError
+    from trackfusion.pipeline import parse_pipeline
+    data = {"factors": {"total_stations": {"enabled": True, "solve": "two_stage"}}}
+    with pytest.raises(ConfigError, match=r"^p\.yaml: factors\.total_stations\.solve: removed; the joint solve "
+                                          r"replaced the two-stage one") as err:
+        parse_pipeline(data, "p.yaml", tmp_path)
+    assert "\n" not in str(err.value)
+    # a section given as a bool (total_stations: false) is no removed key
+    with pytest.raises(ConfigError, match=r"^p\.yaml: smoother\.slow_priors: removed"):
+        parse_pipeline({"factors": {"total_stations": False}, "smoother": {"slow_priors": 1}}, "p.yaml", tmp_path)

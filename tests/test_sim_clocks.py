@@ -4,7 +4,7 @@ for every built-in scenario and seeds 0-99, checked without simulating the IMU."
 import numpy as np
 import pytest
 
-from trackfusion.sensors import aiding
+from trackfusion.simulation import aiding
 from trackfusion.sensors.mcap_log import _log_time_ns
 from trackfusion.simulation import scenarios as S
 from trackfusion.simulation.config import available_scenarios, load_scenario

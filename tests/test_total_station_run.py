@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import json
 
+import gtsam
 import numpy as np
 import pytest
 
 from trackfusion.cli import main
 from trackfusion.errors import RegistrationError
+from trackfusion.fusion import factors as fx
 from trackfusion.pipeline import load_pipeline, run
 from trackfusion.simulation.scenarios import simulate_to_dir
 
@@ -161,3 +163,27 @@ def test_stations_prepared_in_a_forked_child_while_preintegrating(bridge_run, mo
     monkeypatch.setattr(SV.timesync, "synchronise", refuse_ts02)
     with pytest.raises(RegistrationError, match="log.mcap: time sync: station TS02: refused for the test"):
         P._prepare_and_preintegrate(pl, log, problem, lambda _m: None)
+
+
+def test_stacked_factors_give_the_same_solution():
+    """The joint solve stacks the prism readings sharing a keyframe and a station into one factor
+    (``LinearBlocks.group``): the same solution as one factor per reading."""
+    rng = np.random.default_rng(3)
+    K, keys = 12, np.array([gtsam.symbol("x", i % 4) for i in range(12)])
+    A = rng.standard_normal((K, 3, 2))
+    r = rng.standard_normal((K, 3))
+    blocks = fx.LinearBlocks([keys], [A], r, np.ones((K, 3)))
+    prior = [gtsam.JacobianFactor(gtsam.symbol("x", i), np.eye(2), np.zeros(2), gtsam.noiseModel.Unit.Create(2))
+             for i in range(4)]
+    solutions = []
+    for group in (None, keys - keys.min()):
+        g = gtsam.GaussianFactorGraph()
+        for f in prior:
+            g.add(f)
+        fx.to_jacobian_factors(fx.LinearBlocks(blocks.keys, blocks.jacobians, blocks.residual, blocks.sigma,
+                                               group=group), g)
+        solutions.append((g.size(), g.optimize()))
+    (n1, x1), (n2, x2) = solutions
+    assert (n1, n2) == (4 + K, 4 + 4)
+    for i in range(4):
+        assert x1.at(gtsam.symbol("x", i)) == pytest.approx(x2.at(gtsam.symbol("x", i)), abs=1e-12)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal, Mapping
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
@@ -33,6 +33,7 @@ from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings,
 from .fusion.densify_forked import start_densify_forked
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
+from .geometry_inputs import check_geometry_inputs, geometry_for_run
 from .forked import ForkedTasks, can_fork as can_fork_tasks
 from .output_prefetch import OutputPrefetch
 from .registration.stations import StationSetupConfig
@@ -40,19 +41,16 @@ from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
-from .sensor_use import decide_sensor_use, summary_lines as sensor_summary_lines
+from .sensor_use import ClockConfig, decide_sensor_use, summary_lines as sensor_summary_lines
 from .sensors.types import InclinometerData, OdometerData, SensorLog
+from .strict import StrictModel
 from .track.geometry import GeometryConfig
 from .vehicles import MAX_SPEED_MPS, TrolleyVehicle, VehicleConfig, error_location, frame_of, vehicle_section
 
 Vec3 = tuple[float, float, float]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # no NaN/inf in configs
-
-
-class TopicsConfig(_Strict):
+class TopicsConfig(StrictModel):
     """The ROS 2 bag topic of each role (docs/log_format.md, "ROS 2 bags"); a role not named
     is found as the bag's only topic of a supported type."""
 
@@ -61,7 +59,7 @@ class TopicsConfig(_Strict):
     odometer: str | None = None
 
 
-class InputsConfig(_Strict):
+class InputsConfig(StrictModel):
     """``log``: the raw MCAP log or a ROS 2 bag (MCAP, ``.db3``, rosbag2 folder);
     ``reference``: optional truth/reference trajectory CSV to evaluate against;
     ``allow_truncated``: run on the readable part of a damaged log; ``design``: optional design
@@ -84,7 +82,7 @@ class InputsConfig(_Strict):
         return value
 
 
-class OriginConfig(_Strict):
+class OriginConfig(StrictModel):
     lat_deg: float = Field(ge=-90, le=90)
     lon_deg: float = Field(ge=-180, le=360)
     h_m: float = 0.0
@@ -119,17 +117,11 @@ class ImuConfig(ImuSpec):
         return data
 
 
-class ClockConfig(_Strict):
-    """``clock_offset_s``: the sensor's clock minus the IMU clock (t_sensor = t_imu + offset)."""
-
-    clock_offset_s: float = 0.0
-
-
 class GnssConfig(ClockConfig):
     lever_arm_b_m: Vec3
 
 
-class TotalStationsConfig(_Strict):
+class TotalStationsConfig(StrictModel):
     """Robotic total stations (docs/total_stations.md): the prism lever arm in ``b``; each
     station's set-up (given, or resected from ``control_points`` in ``n``); the instrument's
     precision (angles, distance ``sigma + ppm``) and refraction coefficient; and the priors of
@@ -149,7 +141,7 @@ class TotalStationsConfig(_Strict):
     clock_drift_sigma_ppm: float = Field(5.0, gt=0)
 
 
-class SensorsConfig(_Strict):
+class SensorsConfig(StrictModel):
     imu: ImuConfig
     odometer: ClockConfig | None = None
     gnss: GnssConfig | None = None
@@ -157,7 +149,7 @@ class SensorsConfig(_Strict):
     total_stations: TotalStationsConfig | None = None
 
 
-class OutputsConfig(_Strict):
+class OutputsConfig(StrictModel):
     """``trajectory_rate_hz``: rows per second of trajectory.csv (at most the IMU rate; the
     nearest whole divisor of it is used); ``fused_mcap``: write the Foxglove-viewable log;
     ``report``: write report.html (docs/report.md)."""
@@ -168,7 +160,7 @@ class OutputsConfig(_Strict):
     report: bool = True
 
 
-class PipelineConfig(_Strict):
+class PipelineConfig(StrictModel):
     name: str = "survey"
     description: str = ""
     inputs: InputsConfig
@@ -228,13 +220,18 @@ class _UserPaths:
 
 #: keys that went away, and what replaced them (docs/pipeline.md "Removed keys")
 REMOVED_KEYS = {("smoother", "slow_priors"): "the parallel segments it gave priors to are gone: "
-                                            "smoother.part_s solves the run in exact time parts"}
+                                            "smoother.part_s solves the run in exact time parts",
+                ("factors", "total_stations", "solve"): "the joint solve replaced the two-stage one: "
+                                                        "the stations are estimated with the whole trajectory"}
 
 
 def _refuse_removed_keys(data: dict, source: str) -> None:
-    for (section, key), why in REMOVED_KEYS.items():
-        if isinstance(data.get(section), dict) and key in data[section]:
-            raise ConfigError(f"{source}: {section}.{key}: removed; {why}")
+    for path, why in REMOVED_KEYS.items():
+        node = data
+        for key in path[:-1]:
+            node = node.get(key) if isinstance(node, dict) else None
+        if isinstance(node, dict) and path[-1] in node:
+            raise ConfigError(f"{source}: {'.'.join(path)}: removed; {why}")
 
 
 def load_pipeline(path: str | os.PathLike) -> Pipeline:
@@ -261,10 +258,9 @@ def _check_inputs(pipeline: Pipeline) -> None:
     if cfg.factors.total_stations.enabled and cfg.sensors.total_stations is None:
         raise ConfigError(f"{src}: sensors.total_stations: missing (needed by factors.total_stations; "
                           "or set factors.total_stations: false)")
-    from .track.geometry import check_geometry_inputs
     from .vehicles import check_vehicle_support
     check_vehicle_support(cfg, src)  # factors and geometry the vehicle's kind supports
-    check_geometry_inputs(pipeline)  # issue 6: design file and tolerance table
+    check_geometry_inputs(pipeline)  # the design file and the tolerance table
     if cfg.factors.gnss.enabled and "gnss" in cfg.factors.model_fields_set and cfg.sensors.gnss is None:
         raise ConfigError(f"{src}: sensors.gnss: missing (needed by factors.gnss; or set factors.gnss: false)")
 
@@ -336,39 +332,74 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
     cfg = pipeline.config
     sensors, fs = cfg.sensors, cfg.factors
     origin = _origin(pipeline, log)
-    odometer = None
     info: dict[str, Any] = {}
     imu_spec = sensors.imu.spec()
-    # --- issue 8: plausibility of the whole log, sensor clock jumps (fusion/input_checks.py, faults.py)
     src = str(pipeline.path(cfg.inputs.log))
-    # the sensors fused: every switched-on factor's topic in the log (trackfusion/sensor_use.py)
+    used = _checked_sensor_use(pipeline, log, origin, imu_spec, info, say)
+    gnss = _gnss_on_imu_clock(log, used, origin, src, info)
+    odometer = _odometer_on_imu_clock(log, used, fs, src, info, say) if used.use["odometer"] else None
+    static = _static_intervals(cfg, log, odometer, gnss, imu_spec, src, info, say)
+    imu_spec = _imu_spec_with_noise_from_data(log, static, imu_spec, sensors.imu, info, say)
+    inclinometer = _inclinometer_on_imu_clock(log, used, src, info) if used.use["inclinometer"] else None
+    problem = FusionProblem(
+        imu=log.imu, imu_noise=ImuNoise.from_spec(imu_spec), imu_gyro_bias_deg_per_h=imu_spec.gyro_bias_deg_per_h,
+        origin=origin, trolley=frame_of(cfg.vehicle),
+        static_intervals_s=static, factors=fs, keyframes=cfg.keyframes, smoother=cfg.smoother,
+        odometer=odometer, gnss=gnss, inclinometer=inclinometer)
+    return problem, info
+
+
+def _checked_sensor_use(pipeline: Pipeline, log: SensorLog, origin: geodesy.Origin, imu_spec: ImuSpec,
+                        info: dict, say: Callable[[str], None]):
+    """The sensors fused (every switched-on factor's topic in the log, trackfusion/sensor_use.py;
+    a :class:`~trackfusion.sensor_use.SensorUse`, said and put in ``info``) after the
+    plausibility checks of the whole log (fusion/input_checks.py)."""
+    cfg = pipeline.config
+    src = str(pipeline.path(cfg.inputs.log))
     used = decide_sensor_use(cfg, log, pipeline.source, src)
     info.update(used.to_json())
     for line in used.defaulted + [f"{u['topic']} in the log, not used: {u['reason']}" for u in used.unused]:
         say(line)
-    use_gnss, use_odometer, use_inclinometer = used.use["gnss"], used.use["odometer"], used.use["inclinometer"]
-    clocks = used.clocks
-    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use_gnss else None,
-                           odometer=log.odometer if use_odometer else None,
-                           inclinometer=log.inclinometer if use_inclinometer else None,
+    use = used.use
+    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use["gnss"] else None,
+                           odometer=log.odometer if use["odometer"] else None,
+                           inclinometer=log.inclinometer if use["inclinometer"] else None,
                            max_speed_mps=MAX_SPEED_MPS[cfg.vehicle.kind], vehicle=cfg.vehicle.kind)
-    gnss = GnssFixes.from_data(log.gnss, origin, clocks["gnss"].lever_arm_b_m, clocks["gnss"].clock_offset_s) \
-        if use_gnss else None
+    return used
+
+
+def _gnss_on_imu_clock(log: SensorLog, used, origin: geodesy.Origin, src: str, info: dict) -> GnssFixes | None:
+    """The used GNSS fixes in ``n`` on the IMU clock, clock jumps corrected (listed in
+    ``info["clock_jumps"]``, which this starts); None when GNSS is not used."""
     info["clock_jumps"] = []
-    if gnss is not None:
-        gnss.t_s, jumps = faults.correct_clock_jumps(gnss.t_s, gnss.pos_n, "/gnss", src, noise=0.05)
-        info["clock_jumps"] += jumps
-    # --- end issue 8
-    if use_odometer:
-        odo = log.odometer
-        t = preprocess.sensor_times_to_imu_clock(odo.t_s, clocks["odometer"].clock_offset_s)
-        t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)  # issue 8
-        info["clock_jumps"] += jumps
-        odometer, repaired = preprocess.repair_odometer(OdometerData(t, odo.distance_m, odo.ticks),
-                                                        window=fs.odometer.gross_error_window,
-                                                        threshold_m=fs.odometer.gross_error_threshold_m)
-        info["odometer_gross_errors"] = repaired
-        say(f"odometer: {odo.t_s.size} records, {len(repaired)} gross errors repaired")
+    if not used.use["gnss"]:
+        return None
+    clock = used.clocks["gnss"]
+    gnss = GnssFixes.from_data(log.gnss, origin, clock.lever_arm_b_m, clock.clock_offset_s)
+    gnss.t_s, jumps = faults.correct_clock_jumps(gnss.t_s, gnss.pos_n, "/gnss", src, noise=0.05)
+    info["clock_jumps"] += jumps
+    return gnss
+
+
+def _odometer_on_imu_clock(log: SensorLog, used, fs: FactorSettings, src: str, info: dict,
+                           say: Callable[[str], None]) -> OdometerData:
+    """The odometer on the IMU clock, clock jumps corrected and gross errors repaired (both in ``info``)."""
+    odo = log.odometer
+    t = preprocess.sensor_times_to_imu_clock(odo.t_s, used.clocks["odometer"].clock_offset_s)
+    t, jumps = faults.correct_clock_jumps(t, odo.distance_m, "/odometer", src, noise=1e-3)
+    info["clock_jumps"] += jumps
+    odometer, repaired = preprocess.repair_odometer(OdometerData(t, odo.distance_m, odo.ticks),
+                                                    window=fs.odometer.gross_error_window,
+                                                    threshold_m=fs.odometer.gross_error_threshold_m)
+    info["odometer_gross_errors"] = repaired
+    say(f"odometer: {odo.t_s.size} records, {len(repaired)} gross errors repaired")
+    return odometer
+
+
+def _static_intervals(cfg: PipelineConfig, log: SensorLog, odometer: OdometerData | None, gnss: GnssFixes | None,
+                      imu_spec: ImuSpec, src: str, info: dict, say: Callable[[str], None]) -> list[tuple[float, float]]:
+    """The static intervals [(start, end)] [s] from the IMU (and odometer), less those the GNSS
+    fixes show moving; then the gyro's units checked on them (rad/s, not deg/s, at rest)."""
     st = cfg.static
     imu_rate_hz = 1.0 / float(np.median(np.diff(log.imu.t_s)))
     gyro_thr, accel_thr = st.thresholds(imu_spec.gyro_arw_deg_per_sqrt_h, imu_spec.accel_vrw_mps_per_sqrt_h,
@@ -377,38 +408,44 @@ def build_problem(pipeline: Pipeline, log: SensorLog, say: Callable[[str], None]
         log.imu, odometer, window_s=st.window_s, gyro_std_radps=np.radians(gyro_thr),
         accel_std_mps2=accel_thr, max_odometer_speed_mps=st.max_odometer_speed_mps,
         min_duration_s=st.min_duration_s)
-    if gnss is not None:  # an IMU cannot tell constant speed from rest; the fixes can (issue 4)
+    if gnss is not None:  # an IMU cannot tell constant speed from rest; the fixes can
         sigma_m = np.sqrt(np.diagonal(gnss.cov_n, axis1=1, axis2=2))
         moving = preprocess.moving_intervals_by_gnss(static, gnss.t_s, gnss.pos_n, sigma_m)
         info["static_intervals_moving_by_gnss_s"] = [[float(a), float(b)] for a, b in (static[i] for i in moving)]
         static = [iv for i, iv in enumerate(static) if i not in moving]
     info["static_intervals_s"] = [[float(a), float(b)] for a, b in static]
     input_checks.check_static_gyro_units(log.imu, imu_spec, static + input_checks.odometer_rest_intervals(odometer),
-                                         src)  # issue 8
+                                         src)
     say(f"static intervals: {len(static)} ({sum(b - a for a, b in static):.0f} s)")
-    imu_noise = estimate_imu_noise(log.imu, static, imu_spec)  # reported beside the datasheet's values
-    if imu_noise is not None:
-        info["noise_estimates"] = {"imu": imu_noise.to_json()}
-        say(imu_noise.summary())
-        imu_spec, replaced = _imu_spec_from_data(imu_spec, imu_noise, sensors.imu.white_noise_tolerance)
-        info["noise_estimates"]["imu"]["used"] = replaced
-        for key in replaced:
-            say(f"sensors.imu.{key}: the static data give {getattr(imu_spec, key):.3g}, outside the datasheet's "
-                f"{getattr(sensors.imu, key):.3g} x/ {sensors.imu.white_noise_tolerance:g} "
-                "(sensors.imu.white_noise_tolerance): the smoother uses the estimate")
-    inclinometer = None
-    if use_inclinometer:
-        inc = log.inclinometer
-        t = preprocess.sensor_times_to_imu_clock(inc.t_s, clocks["inclinometer"].clock_offset_s)
-        t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)  # issue 8
-        info["clock_jumps"] += jumps
-        inclinometer = InclinometerData(t, inc.roll_rad, inc.pitch_rad)
-    problem = FusionProblem(
-        imu=log.imu, imu_noise=ImuNoise.from_spec(imu_spec), imu_gyro_bias_deg_per_h=imu_spec.gyro_bias_deg_per_h,
-        origin=origin, trolley=frame_of(cfg.vehicle),
-        static_intervals_s=static, factors=fs, keyframes=cfg.keyframes, smoother=cfg.smoother,
-        odometer=odometer, gnss=gnss, inclinometer=inclinometer)
-    return problem, info
+    return static
+
+
+def _imu_spec_with_noise_from_data(log: SensorLog, static: list[tuple[float, float]], imu_spec: ImuSpec,
+                                   imu_cfg, info: dict, say: Callable[[str], None]) -> ImuSpec:
+    """The IMU noise estimated from the static data (reported in ``info["noise_estimates"]``
+    beside the datasheet's ``imu_cfg``) and the specification the smoother uses: the datasheet's,
+    with the estimate where :func:`_imu_spec_from_data` says so."""
+    imu_noise = estimate_imu_noise(log.imu, static, imu_spec)
+    if imu_noise is None:
+        return imu_spec
+    info["noise_estimates"] = {"imu": imu_noise.to_json()}
+    say(imu_noise.summary())
+    imu_spec, replaced = _imu_spec_from_data(imu_spec, imu_noise, imu_cfg.white_noise_tolerance)
+    info["noise_estimates"]["imu"]["used"] = replaced
+    for key in replaced:
+        say(f"sensors.imu.{key}: the static data give {getattr(imu_spec, key):.3g}, outside the datasheet's "
+            f"{getattr(imu_cfg, key):.3g} x/ {imu_cfg.white_noise_tolerance:g} "
+            "(sensors.imu.white_noise_tolerance): the smoother uses the estimate")
+    return imu_spec
+
+
+def _inclinometer_on_imu_clock(log: SensorLog, used, src: str, info: dict) -> InclinometerData:
+    """The inclinometer on the IMU clock, clock jumps corrected (in ``info["clock_jumps"]``)."""
+    inc = log.inclinometer
+    t = preprocess.sensor_times_to_imu_clock(inc.t_s, used.clocks["inclinometer"].clock_offset_s)
+    t, jumps = faults.correct_clock_jumps(t, np.zeros(t.size), "/inclinometer", src, noise=1.0)
+    info["clock_jumps"] += jumps
+    return InclinometerData(t, inc.roll_rad, inc.pitch_rad)
 
 
 #: an IMU noise estimate below this fraction of the datasheet's is no sensor's but a noise-free log's
@@ -431,7 +468,7 @@ def _imu_spec_from_data(spec: ImuSpec, est, tolerance: float) -> tuple[ImuSpec, 
     return (spec.model_copy(update=replaced) if replaced else spec), sorted(replaced)
 
 
-# --- total stations (issue 5) ---------------------------------------------------------------------
+# --- total stations --------------------------------------------------------------------------------
 
 def _prepare_total_stations(pipeline: Pipeline, log: SensorLog, problem: FusionProblem,
                             say: Callable[[str], None]):
@@ -524,12 +561,8 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
 def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
                   on_solved: Callable[..., None] | None = None,
                   preintegrated: Preintegrated | None = None) -> SmootherResult:
-    """One batch: total-station runs in two stages with ``factors.total_stations.solve: two_stage``
-    (registration/two_stage.py), anything else by :func:`smooth` (``on_solved``, ``preintegrated``:
-    see there)."""
-    from .registration.two_stage import smooth_two_stage, uses_two_stage
-    return (smooth_two_stage(problem, progress=say, on_solved=on_solved, preintegrated=preintegrated)
-            if uses_two_stage(problem) else smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated))
+    """One batch by :func:`smooth` (``on_solved``, ``preintegrated``: see there)."""
+    return smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated)
 
 
 def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
@@ -613,7 +646,9 @@ def input_paths(pipeline: Pipeline) -> list[Path]:
 
 
 def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = None) -> RunResult:
-    """:func:`run` in its locked output folder (an :class:`~trackfusion.outdir.OutputFolder`)."""
+    """:func:`run` in its locked output folder (an :class:`~trackfusion.outdir.OutputFolder`):
+    read, preprocess, smooth (in chunks or one batch), metrics, track geometry, evaluation
+    against the reference, outputs; each a step of its own."""
     say = progress or (lambda _m: None)
     cfg = pipeline.config
     out = folder.path
@@ -629,13 +664,87 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     found = {"truncated_log": damage, "clock_jumps": info.pop("clock_jumps"),
              "odometer_gross_errors": info.get("odometer_gross_errors")}
     problem, survey, preintegrated = _prepare_and_preintegrate(pipeline, log, problem, say)
-    if survey is not None:  # issue 8: total-station clock jumps (registration/clock_jumps.py)
+    if survey is not None:  # total-station clock jumps (registration/clock_jumps.py)
         found["clock_jumps"] += survey.info["clock_jumps"]
     timings["preprocess_s"] = time.perf_counter() - tic
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
-    sm = cfg.smoother
     duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
+    chunked = _in_chunks(pipeline, problem, duration_s, info, say)
+    with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
+        with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
+            prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None)
+            if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
+                problem, smoothed = _smooth_chunked(problem, log, stage, every, imu_rate, writer, cfg, say)
+            else:
+                smoothed = _smooth_one_batch(problem, cfg, say, preintegrated, every, writer, prefetch, background)
+        res, table = smoothed.res, smoothed.table
+        timings.update(res.timings_s)
+        metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
+                                   "imu_samples": int(problem.imu.t_s.size),
+                                   "duration_s": duration_s, "trajectory_rate_hz": float(imu_rate / every),
+                                   **_smoother_metrics(res, info),
+                                   "faults": faults.detected_faults(problem, res, found)}
+        if survey is not None:
+            metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
+        geometry = _geometry_step(pipeline, problem, smoothed, log, metrics, timings, say)
+        # --- outputs of the tables alone, in a forked child while the evaluation goes on (report/outputs.py) ---
+        early = start_table_outputs(background, stage, table, problem.origin, cfg, geometry, log,
+                                    FUSED_POSE_RATE_HZ) if table is not None else None
+        smoothed.release_geometry_rows()
+        if cfg.inputs.reference is not None:
+            say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")
+            from .evaluation.reference import compare_with_reference
+            metrics.update(compare_with_reference(smoothed.evaluation_table, pipeline.path(cfg.inputs.reference),
+                                                  problem.origin.to_dict(), prefetch.reference()))
+        timings["output_s"] = time.perf_counter() - smoothed.output_tic
+        timings["total_s"] = time.perf_counter() - wall
+        metrics["timings_s"] = timings
+        metrics["run_time_s"] = timings["total_s"]
+        say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
+        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log,
+                              fused_table=smoothed.fused_table, early=early, background=background)
+    say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
+    from .sensors.fileio import CsvTableOnDisk
+    return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
+
+
+@dataclass
+class _Smoothed:
+    """A run's smoothed trajectory and what the later steps read of it.
+
+    res: the keyframe result; table: the whole trajectory.csv table, or None when it is only on
+    disk (a run in chunks); evaluation_table: the rows compared with the reference (or None);
+    fused_table: the rows fused.mcap shows when not ``table`` (a long run's, thinned);
+    dense, chainage_m, geometry_imu: what the track geometry reads (the IMU-rate rows, their
+    chainage [m] and, for a run in chunks, the IMU samples read back); kept: the spill arrays
+    holding a long run's geometry rows; output_tic: ``time.perf_counter()`` at which the output
+    step began (``timings_s.output_s``)."""
+
+    res: SmootherResult
+    table: dict[str, np.ndarray] | None
+    evaluation_table: dict[str, np.ndarray] | None
+    fused_table: dict[str, np.ndarray] | None
+    dense: Any
+    chainage_m: np.ndarray | None
+    geometry_imu: Any
+    kept: Any
+    output_tic: float
+
+    def release_geometry_rows(self) -> None:
+        """Drop the rows only the track geometry reads (memory of a long run)."""
+        self.dense = self.chainage_m = self.geometry_imu = None
+        if self.kept is not None:
+            self.kept.release()  # the geometry's rows, read back for it
+
+
+def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float, info: dict,
+               say: Callable[[str], None]) -> bool:
+    """Whether the run is smoothed in chunks (``smoother.chunk_s``, longer runs than a chunk and
+    its overlap); a total-station run too long for one batch is refused, and the wheel path,
+    which chunks leave out, is said and listed in ``info["factors_left_out"]``."""
+    cfg = pipeline.config
+    sm = cfg.smoother
     chunked = sm.chunk_s is not None and duration_s > sm.chunk_s + sm.overlap_s
     if chunked and problem.prisms is not None:  # station correction states are not handed over between chunks
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
@@ -647,80 +756,62 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}"
             + (f"; keyframes every {cfg.keyframes.spacing_without_wheel_path_s:g} s (keyframes.spacing_without_wheel_path_s)"
                if cfg.keyframes.spacing_without_wheel_path_s else ""))
-    with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
-        with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
-            geometry_imu = kept = None  # the IMU samples the geometry reads, when not the problem's
-            prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None)
-            if chunked:  # long runs: memory bounded by the chunk (docs/long_runs.md)
-                from .sensors.spill import SpillArrays, SpilledImu
-                spilled = SpilledImu(problem.imu, stage)  # the IMU read from disk chunk by chunk
-                log.imu = spilled.imu
-                problem = replace(problem, imu=spilled.imu)
-                release_free_memory()  # the IMU arrays and preprocessing's temporaries
-                kept = SpillArrays(stage)  # the rows the geometry reads at the end
+    return chunked
 
-                def after_chunk():
-                    spilled.release()
-                    kept.release()
 
-                res, stream = _smooth_streamed(problem, every, imu_rate, writer.write, cfg, say, after_chunk,
-                                               kept.empty)
-                tic, table = time.perf_counter(), None
-                dense, chainage, geometry_imu = stream.geometry_input() if stream.geometry is not None else (None,) * 3
-                fused_table = stream.thinned.columns() if stream.thinned is not None else None
-                evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
-                del stream
-            else:
-                # one batch (its steps in exact time parts with smoother.part_s, fusion/partitioned.py);
-                # the reference read on the CPU the solve leaves idle (output_prefetch.py)
-                prefetch.read_in_child(background)
-                res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
-                tic = time.perf_counter()
-                say("writing the trajectory at the output rate")
-                chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
-                table = evaluation_table = trajectory_table(dense, res, chainage, every)
-                fused_table = None
-                writer.write(table, background)  # formatted in a forked child (trackfusion/forked.py)
-        timings.update(res.timings_s)
-        metrics: dict[str, Any] = {"name": cfg.name, "origin": problem.origin.to_dict(),
-                                   "imu_samples": int(problem.imu.t_s.size),
-                                   "duration_s": duration_s, "trajectory_rate_hz": float(imu_rate / every),
-                                   **_smoother_metrics(res, info),
-                                   "faults": faults.detected_faults(problem, res, found)}
-        if survey is not None:
-            metrics.update(_total_station_metrics(survey, res, problem, table, cfg))
-        # --- track geometry (issue 6): geometry.csv and metrics["geometry"] ---
-        from .track.geometry import geometry_for_run
-        tic_geometry = time.perf_counter()
-        if cfg.geometry.enabled:
-            say("computing the track geometry")
-        geometry = geometry_for_run(pipeline, problem if geometry_imu is None else replace(problem, imu=geometry_imu),
-                                    res, dense, chainage, log.gauge)
-        if geometry is not None:
-            metrics["geometry"] = geometry.metrics
-            timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
-        # --- end track geometry ---
-        # --- outputs of the tables alone, in a forked child while the evaluation goes on (report/outputs.py) ---
-        early = start_table_outputs(background, stage, table, problem.origin, cfg, geometry, log,
-                                    FUSED_POSE_RATE_HZ) if table is not None else None
-        del dense, chainage, geometry_imu
-        if kept is not None:
-            kept.release()  # the geometry's rows, read back for it
-        if cfg.inputs.reference is not None:
-            say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")  # issue 7: progress
-            from .evaluation.reference import compare_with_reference
-            metrics.update(compare_with_reference(evaluation_table, pipeline.path(cfg.inputs.reference),
-                                                  problem.origin.to_dict(), prefetch.reference()))
-        timings["output_s"] = time.perf_counter() - tic
-        timings["total_s"] = time.perf_counter() - wall
-        metrics["timings_s"] = timings
-        metrics["run_time_s"] = timings["total_s"]
-        say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log, fused_table=fused_table,
-                              early=early, background=background)
-    say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
-    from .sensors.fileio import CsvTableOnDisk
-    return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
+def _smooth_chunked(problem: FusionProblem, log: SensorLog, stage: Path, every: int, imu_rate_hz: float, writer,
+                    cfg: PipelineConfig, say: Callable[[str], None]) -> tuple[FusionProblem, _Smoothed]:
+    """A long run smoothed in chunks with its memory bounded by the chunk: the IMU spilled to
+    ``stage`` and read back chunk by chunk (``log.imu`` and the returned problem's too), the rows
+    written by ``writer`` as each chunk is done, the geometry's rows kept on disk."""
+    from .sensors.spill import SpillArrays, SpilledImu
+    spilled = SpilledImu(problem.imu, stage)  # the IMU read from disk chunk by chunk
+    log.imu = spilled.imu
+    problem = replace(problem, imu=spilled.imu)
+    release_free_memory()  # the IMU arrays and preprocessing's temporaries
+    kept = SpillArrays(stage)  # the rows the geometry reads at the end
+
+    def after_chunk():
+        spilled.release()
+        kept.release()
+
+    res, stream = _smooth_streamed(problem, every, imu_rate_hz, writer.write, cfg, say, after_chunk, kept.empty)
+    tic = time.perf_counter()
+    dense, chainage, geometry_imu = stream.geometry_input() if stream.geometry is not None else (None,) * 3
+    fused_table = stream.thinned.columns() if stream.thinned is not None else None
+    evaluation_table = stream.evaluation.columns() if stream.evaluation is not None else None
+    return problem, _Smoothed(res, None, evaluation_table, fused_table, dense, chainage, geometry_imu, kept, tic)
+
+
+def _smooth_one_batch(problem: FusionProblem, cfg: PipelineConfig, say: Callable[[str], None],
+                      preintegrated: Preintegrated | None, every: int, writer, prefetch: OutputPrefetch,
+                      background: ForkedTasks) -> _Smoothed:
+    """One batch (its steps in exact time parts with smoother.part_s, fusion/partitioned.py), the
+    reference read meanwhile on the CPU the solve leaves idle (output_prefetch.py); the rows at
+    the output rate handed to ``writer`` (formatted in a forked child of ``background``)."""
+    prefetch.read_in_child(background)
+    res, dense = _smooth_and_densify(problem, cfg, say, preintegrated)  # fusion/densify_forked.py
+    tic = time.perf_counter()
+    say("writing the trajectory at the output rate")
+    chainage = chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
+    table = trajectory_table(dense, res, chainage, every)
+    writer.write(table, background)  # formatted in a forked child (trackfusion/forked.py)
+    return _Smoothed(res, table, table, None, dense, chainage, None, None, tic)
+
+
+def _geometry_step(pipeline: Pipeline, problem: FusionProblem, smoothed: _Smoothed, log: SensorLog, metrics: dict,
+                   timings: dict, say: Callable[[str], None]):
+    """The track geometry (geometry.csv's table and ``metrics["geometry"]``,
+    :func:`~trackfusion.geometry_inputs.geometry_for_run`), or None when it is off."""
+    tic_geometry = time.perf_counter()
+    if pipeline.config.geometry.enabled:
+        say("computing the track geometry")
+    imu_problem = problem if smoothed.geometry_imu is None else replace(problem, imu=smoothed.geometry_imu)
+    geometry = geometry_for_run(pipeline, imu_problem, smoothed.res, smoothed.dense, smoothed.chainage_m, log.gauge)
+    if geometry is not None:
+        metrics["geometry"] = geometry.metrics
+        timings["geometry_s"] = time.perf_counter() - tic_geometry  # (also inside output_s)
+    return geometry
 
 
 #: rate of the poses in fused.mcap [Hz] (a long run keeps only those rows of its trajectory for it)
@@ -777,7 +868,7 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
     from .sensors.fileio import write_json_atomic
     tic_write = time.perf_counter()  # timings_s.write_s
     write_json_atomic(stage / "metrics.json", metrics)
-    # --- issues 6 and 7: geometry.csv, Foxglove log and report, from the staged files (report last) ---
+    # --- geometry.csv, Foxglove log and report, from the staged files (report last) ---
     if early is None:
         images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
                                      raw, FUSED_POSE_RATE_HZ)
@@ -793,7 +884,7 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
         write_report(stage, stage / "report.html", shown_dir=out, tables=tables, images=images)
     if background is not None:
         background.wait()  # trajectory.csv's rows (renamed into the stage when written)
-    # --- end issues 6 and 7 ---
+    # --- end of the staged outputs ---
     # metrics.json once more, last, with the time the writing took
     timings = metrics.setdefault("timings_s", {})
     timings["write_s"] = time.perf_counter() - tic_write
@@ -823,14 +914,14 @@ def format_summary(result: RunResult) -> str:
         lines.append(f"  GNSS white sigma: stated {st[0]:.1f}/{st[2]:.1f} mm, from the residuals "
                      f"{est[0]:.1f}/{est[2]:.1f} mm (horizontal/vertical; variance factor applied "
                      f"{applied['horizontal']:.2f}/{applied['vertical']:.2f})")
-    if m.get("faults"):  # issue 8: docs/robustness.md
+    if m.get("faults"):  # data faults: docs/robustness.md
         lines.append("  data faults: " + ", ".join(f"{k} {v['count']}" if "count" in v else k
                                                   for k, v in m["faults"].items()))
         lines += faults.summary_lines(m["faults"])
         if "missing_static_period" in m["faults"]:
             miss = m["faults"]["missing_static_period"]
             lines.append(f"  no static period at the {' and '.join(miss['at'])}: {miss['action']}")
-    for sid, ts in m.get("time_sync", {}).items():  # total stations (issue 5)
+    for sid, ts in m.get("time_sync", {}).items():  # total stations
         est = m.get("registration", {}).get("stations", {}).get(sid, {})
         r = f"r_max {ts['r_max']:.3f}" if ts.get("r_max") is not None else "offset given"
         lines.append(f"  station {sid}: clock offset {ts['offset_s']:+.4f} s ({r}), drift {ts['drift_ppm']:+.2f} ppm"

@@ -26,7 +26,7 @@ QUIET, NORMAL, VERBOSE = -1, 0, 1
 _STAGES = (("reading", re.compile(r"\breading\b")), ("simulating", re.compile(r"\bbuilding track|\bIMU: \d+ samples")),
            ("preintegrating", re.compile(r"\bpreintegrating\b")),
            ("chunks", re.compile(r"^chunk \d+ of \d+")), ("segments", re.compile(r"\bsegments?\b")),
-           ("solving", re.compile(r"\bsolving\b|^\s*iteration \d+|two-stage solve")),
+           ("solving", re.compile(r"\bsolving\b|^\s*iteration \d+")),
            ("geometry", re.compile(r"\bgeometry\b")), ("evaluating", re.compile(r"\bevaluating\b")),
            ("writing", re.compile(r"\bwriting\b")), ("batch", re.compile(r"^batch: ")))
 _COUNT = re.compile(r"(?:^|\D)(\d+) of (\d+)\b|\[(\d+)/(\d+)\]")

@@ -21,10 +21,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from .errors import ConfigError
+from .strict import StrictModel
 
 #: the log topic of each fused sensor (sensors/schemas.py's topics)
 TOPICS = {"odometer": "/odometer", "gnss": "/gnss", "inclinometer": "/inclinometer"}
 TOTAL_STATION_TOPICS = "/total_station/<id>"
+
+
+class ClockConfig(StrictModel):
+    """A sensor section's clock: ``clock_offset_s``, the sensor's clock minus the IMU clock
+    (t_sensor = t_imu + offset) [s]; the default of a sensor used without its section."""
+
+    clock_offset_s: float = 0.0
 
 
 @dataclass
@@ -62,7 +70,6 @@ def decide_sensor_use(cfg, log, source: str, log_path: str) -> SensorUse:
     """What the pipeline ``cfg`` fuses of ``log`` (a :class:`~trackfusion.sensors.types.SensorLog`);
     raises :class:`ConfigError` for a switched-on factor without its topic, and for GNSS fixes
     to fuse without a lever arm (module docstring)."""
-    from .pipeline import ClockConfig  # the sensors' sections (pipeline.py imports this module)
     fs, sensors = cfg.factors, cfg.sensors
     use: dict[str, bool] = {}
     clocks: dict[str, Any] = {}

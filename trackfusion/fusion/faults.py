@@ -24,13 +24,13 @@ from typing import Any
 import numpy as np
 
 from ..errors import SensorDataError
+from ..registration import readings as prism_readings
 from . import factors as fx
 from .alignment import END_MARGIN_S
 
 __all__ = ["correct_clock_jumps", "gnss_outages", "gnss_degraded_episodes", "odometer_slips",
            "prism_mislocks", "prism_gaps", "summarise_faults", "summary_lines", "OUTAGE_FACTOR", "SLIP_WHITENED_THRESHOLD", "SLIP_MIN_M",
-           "SLIP_SCALE_WINDOW_S", "residual_scale",
-           "PRISM_GAP_MIN_S"]
+           "SLIP_SCALE_WINDOW_S", "residual_scale"]
 
 #: an interval between fixes longer than this many nominal intervals is an outage
 OUTAGE_FACTOR = 3.0
@@ -44,9 +44,6 @@ SLIP_MIN_M = 2e-3
 SLIP_SCALE_WINDOW_S = 30.0
 #: increments shorter than this [m] do not enter the residual scale's median (at rest)
 _SLIP_MOVING_M = 1e-3
-#: a station's interval without readings is a gap when it lasts longer than this [s] (and
-#: than ``OUTAGE_FACTOR`` reading intervals)
-PRISM_GAP_MIN_S = 1.0
 
 
 def _runs(mask: np.ndarray, bridge: int = 0) -> list[tuple[int, int]]:
@@ -259,14 +256,14 @@ def _covered_s(a: float, b: float, intervals: np.ndarray) -> float:
 
 def prism_gaps(t_s: np.ndarray, station: np.ndarray, station_ids: list[str]) -> list[dict[str, Any]]:
     """Intervals in which a station lost the prism: between two of its readings, longer than
-    ``PRISM_GAP_MIN_S`` and ``OUTAGE_FACTOR`` median reading intervals, and at most half covered
+    ``registration.readings.PRISM_GAP_MIN_S`` and ``OUTAGE_FACTOR`` median reading intervals, and at most half covered
     by another station's tracking (a hand-over: the prism turned to the other station is no
     gap). Before a station's first and after its last reading it is not expected to track.
     ``t_s`` (N,) [s] sorted, ``station`` (N,) index into ``station_ids``. One ``{"station",
     "start_s", "end_s", "duration_s", "readings_missing"}`` per gap (last reading before, first
     after; readings missing at the median rate)."""
     per = [np.asarray(t_s[station == j], dtype=float) for j in range(len(station_ids))]
-    limit = [max(PRISM_GAP_MIN_S, OUTAGE_FACTOR * float(np.median(np.diff(t)))) if t.size > 2 else np.inf
+    limit = [max(prism_readings.PRISM_GAP_MIN_S, OUTAGE_FACTOR * float(np.median(np.diff(t)))) if t.size > 2 else np.inf
              for t in per]
     tracked = [_tracked_intervals(t, g) if t.size > 2 else np.zeros((0, 2)) for t, g in zip(per, limit)]
     out = []

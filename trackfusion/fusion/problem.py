@@ -4,6 +4,7 @@ geometry and the settings. Pure data; :mod:`trackfusion.pipeline` builds it from
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,6 +14,9 @@ from ..rotations import R_from_ypr
 from ..sensors.types import GnssData, ImuData, InclinometerData, OdometerData
 from .preintegration import ImuNoise
 from .settings import FactorSettings, KeyframeSettings, SmootherSettings
+
+if TYPE_CHECKING:  # (the readings' home is registration/)
+    from ..registration.readings import PrismReadings
 
 
 @dataclass(frozen=True)
@@ -109,42 +113,4 @@ class FusionProblem:
     odometer: OdometerData | None = None
     gnss: GnssFixes | None = None
     inclinometer: InclinometerData | None = None
-    prisms: "PrismReadings | None" = None  # total stations (issue 5)
-
-
-@dataclass
-class PrismReadings:
-    """Total-station readings of the trolley prism, in ``n`` with the nominal (or resected)
-    set-ups, on the IMU clock as synchronised (``t_imu = t_station - offset_s``), sorted by time.
-
-    t_s (N,) [s]; pos_n (N,3) [m]; cov_n (N,3,3) [m^2] from the polar precision; station (N,)
-    int index into ``station_ids`` (J,); station_pos_n (J,3) [m] instrument points (the centre
-    of each station's rotation); lever_arm_b (3,) [m] IMU origin to the prism centre;
-    prior_sigma (J,8) standard deviations of each station's correction state
-    (fusion/factors.py ``STATION_STATE_DIM``: rotation [rad] (3, in ``n``), translation [m] (3),
-    clock offset [s], clock drift [ppm]) about zero. flagged (N,) bool or None: readings left out
-    of the fusion before it (issue 8: the step check's mis-locks, registration/steps.py).
-    fixed_states (J,8) or None: when given, the stations are held at these corrections (no
-    station states in the graph: a chain, as fast as a GNSS run; registration/two_stage.py
-    estimates them first), see :attr:`stations_fixed`.
-    """
-
-    t_s: np.ndarray
-    pos_n: np.ndarray
-    cov_n: np.ndarray
-    station: np.ndarray
-    station_ids: list[str]
-    station_pos_n: np.ndarray
-    lever_arm_b: np.ndarray
-    prior_sigma: np.ndarray
-    flagged: np.ndarray | None = None
-    fixed_states: np.ndarray | None = None
-
-    def usable(self) -> np.ndarray:
-        """Indices (M,) of the readings not flagged before the fusion."""
-        return np.arange(self.t_s.size) if self.flagged is None else np.flatnonzero(~self.flagged)
-
-    @property
-    def stations_fixed(self) -> bool:
-        """True when the station corrections are held at ``fixed_states`` (not estimated)."""
-        return self.fixed_states is not None
+    prisms: PrismReadings | None = None  # total-station prism readings

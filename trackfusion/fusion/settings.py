@@ -145,10 +145,8 @@ class TotalStationFactorSettings(_Factor):
     good readings, ~0.05 an hour at 10 Hz and two stations); ``mislock_min_run`` or more such
     readings of one station with at most ``mislock_max_gap`` accepted readings between them form
     a mis-lock (the station tracking something else), and the whole run is rejected.
-    ``time_sync``: registration/timesync.py. ``solve``: ``joint`` estimates the stations with the
-    full trajectory; ``two_stage`` estimates them on coarse keyframes first and then smooths the
-    trajectory with them held (a chain graph, as a GNSS run: registration/two_stage.py; 23 %
-    less CPU, but its coarse station estimate is less precise: docs/total_stations.md).
+    ``time_sync``: registration/timesync.py. The stations are estimated jointly with the whole
+    trajectory.
     """
 
     enabled: bool = False
@@ -160,7 +158,6 @@ class TotalStationFactorSettings(_Factor):
     mislock_max_gap: int = Field(3, ge=0)
     clock_offset_sigma_s: float = Field(0.05, gt=0)
     time_sync: TimeSyncSettings = TimeSyncSettings()
-    solve: Literal["joint", "two_stage"] = "joint"
 
 
 class NoiseEstimationSettings(_Factor):

@@ -33,7 +33,6 @@ from .problem import FusionProblem, GnssFixes
 from ..parallel import dask_client
 from .partitioned import MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, part_marginals
 from .wheel_path import wheel_path_builder
-from ..evaluation.errors_series import hermite_interpolate
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 DEG = np.pi / 180.0
@@ -145,7 +144,7 @@ def static_mask(t_s: np.ndarray, intervals: list[tuple[float, float]]) -> np.nda
 
 
 def _alignment(problem: FusionProblem) -> Alignment:
-    # start, else end static period, else levelling while moving (issue 8; fusion/alignment.py)
+    # start, else end static period, else levelling while moving (fusion/alignment.py)
     return initial_alignment(problem)
 
 
@@ -351,7 +350,7 @@ class _Builder:
         self.builders.append(("gnss_error", build))
         self._count("gnss_error", used.size)
 
-    # --- total stations (issue 5) ---------------------------------------------------------------
+    # --- total stations --------------------------------------------------------------------------
 
     def prisms(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
         """Factors of the used prism readings (indices into ``problem.prisms``) and one correction
@@ -359,8 +358,7 @@ class _Builder:
         instrument specification. Each reading is tied to its nearest keyframe and moved along
         the prism's velocity (fusion/factors.py ``prism_residual``). Returns the factors' builder."""
         pr, st, imu = self.pb.prisms, self.pb.factors.total_stations, self.pb.imu
-        fixed = pr.fixed_states  # stations held (registration/two_stage.py): no T(j), a chain graph
-        for j in range(len(pr.station_ids) if fixed is None else 0):
+        for j in range(len(pr.station_ids)):
             if not values.exists(T(j)):
                 values.insert(T(j), np.zeros(fx.STATION_STATE_DIM))
             self.g.add(gtsam.PriorFactorVector(T(j), np.zeros(fx.STATION_STATE_DIM),
@@ -374,21 +372,21 @@ class _Builder:
         idx = self.idx[kk]
         w_ib_b = 0.5 * (imu.gyro_radps[idx] + imu.gyro_radps[np.minimum(idx + 1, imu.t_s.size - 1)])
         omega_ie_n = geodesy.earth_rate_n(self.pb.origin)
-        keys = [X(0) + kk, V(0) + kk] + ([T(0) + sid] if fixed is None else [])
+        keys = [X(0) + kk, V(0) + kk, T(0) + sid]
         ones = np.ones((used.size, 3))
         lever = pr.lever_arm_b
-        group = kk * len(pr.station_ids) + (sid if fixed is None else 0)  # readings sharing their keys: one factor
+        group = kk * len(pr.station_ids) + sid  # readings sharing their keys: one factor
 
         def build(state: _State) -> fx.LinearBlocks:
             R = state.R[kk]
             w_nb_b = w_ib_b - np.einsum("kji,j->ki", R, omega_ie_n)
-            q = state.ts[sid] if fixed is None else fixed[sid]
-            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, lever, dt, t_imu, q, y, from_station)
-            return fx.LinearBlocks(keys, J[:len(keys)], r, ones, st.huber_k, W, group)
+            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, lever, dt, t_imu, state.ts[sid], y,
+                                     from_station)
+            return fx.LinearBlocks(keys, J, r, ones, st.huber_k, W, group)
 
         self.builders.append(("prism", build))
         self._count("prism", used.size)
-        self._count("station_prior", len(pr.station_ids) if fixed is None else 0)
+        self._count("station_prior", len(pr.station_ids))
         return build
 
     def _gnss_error_prior(self, first: int, values: gtsam.Values, corr: np.ndarray, tau_s: float) -> None:
@@ -799,8 +797,7 @@ def preintegrate_problem(problem: FusionProblem) -> Preintegrated:
 
 
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
-           hand_over_t_s: float | None = None, initial: SmootherResult | None = None,
-           sigmas: bool = True, on_solved: Callable[..., None] | None = None,
+           hand_over_t_s: float | None = None, on_solved: Callable[..., None] | None = None,
            preintegrated: "Preintegrated | None" = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
@@ -808,9 +805,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     For overlapping chunks (fusion/chunks.py): ``join`` is the previous chunk's state at this
     chunk's first sample (replaces the alignment and the anchor); with ``hand_over_t_s`` the
     result carries the state at the keyframe nearest to that time (``SmootherResult.hand_over``).
-    ``initial``: an earlier solution of the same run (e.g. on coarser keyframes,
-    registration/two_stage.py) that the estimate starts from instead (:func:`_warm_start`).
-    Without ``sigmas`` no marginal sigmas (empty arrays: a coarse solve for the slow states only).
     ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
     result's arrays once the solve is done, before the marginals (the pipeline starts the
     densification in forked children there, fusion/densify_forked.py). ``preintegrated``: this
@@ -849,8 +843,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                                 PRISM_INIT_MEDIAN if gnss is None and problem.prisms is not None else 0)
     if join is not None and gnss is None and problem.prisms is None:
         pos0 += join.pos_n - pos0[0]
-    if initial is not None:  # issue 5: the two-stage solve's second stage starts from its first
-        R0, pos0, vel0 = _warm_start(initial, t_key, R0)
     if fs.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity
         g_n = geodesy.gravity_n(pos0, problem.origin)
@@ -867,15 +859,11 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     for k in range(t_key.size):
         values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
         values.insert(V(k), vel0[k])
-    start = nearest_sample(initial.t_s, t_key) if initial is not None else None  # (K,) keyframes of ``initial``
     for m in range(int(bias_seg[-1]) + 1):
-        c = start[np.argmax(bias_seg == m)] if start is not None else None
-        values.insert(B(m), gtsam.imuBias.ConstantBias() if c is None else
-                      gtsam.imuBias.ConstantBias(initial.accel_bias_mps2[c], initial.gyro_bias_radps[c]))
+        values.insert(B(m), gtsam.imuBias.ConstantBias())
     if with_scale:
         for m in range(int(seg[-1]) + 1):
-            c = start[np.argmax(seg == m)] if start is not None and initial.odometer_scale is not None else None
-            values.insert(S(m), np.zeros(1) if c is None else np.array([initial.odometer_scale[c]]))
+            values.insert(S(m), np.zeros(1))
     if join is not None:
         values.update(X(0), gtsam.Pose3(gtsam.Rot3(join.R_nb), join.pos_n))
         values.update(V(0), join.vel_n)
@@ -908,7 +896,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             ok &= gnss.fix_quality != 5
         used = np.flatnonzero(ok)
     rejected: list[dict] = []
-    # issue 8: readings the step check flagged before the fusion are rejected from the start
+    # readings the step check flagged as mis-locks before the fusion are rejected from the start
     prism_used, rejected_prism = prefused_rejections(prisms) if prisms is not None else (None, [])
     tic = time.perf_counter()
     iterations = 0
@@ -942,7 +930,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         newly_rejected = False
-        if prism_build is not None:  # total stations (issue 5): gate, mis-lock runs
+        if prism_build is not None:  # total stations: gate, mis-lock runs
             prism_used, newly = gate_prisms(prism_build(sol.state), prism_used, prisms, fs.total_stations)
             rejected_prism += newly
             newly_rejected = bool(newly)
@@ -988,10 +976,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     # the solve's last linearisation serves the marginals (at most one converged step before the
     # estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
-    tree = _sigma_marginals(problem, sol, gfg if b.soft.keys else None, partition, t_key, bias_seg, seg) \
-        if sigmas else None
-    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s) if sigmas \
-        else (np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)))
+    tree = _sigma_marginals(problem, sol, gfg if b.soft.keys else None, partition, t_key, bias_seg, seg)
+    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s)
     hand_over = None
     if hand_over_t_s is not None:
         k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
@@ -1001,7 +987,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
                           sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(sol.cost),
                           dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
-                          station_states=_station_states(prisms, state),
+                          station_states=None if prisms is None else state.ts,
                           station_cov=_station_covariance(prisms, sol.tree),
                           rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
                           hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
@@ -1053,33 +1039,11 @@ def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, 
                      problem.smoother.workers or 1, problem.smoother.engine, problem.smoother.address)
 
 
-def _warm_start(initial: SmootherResult, t_key: np.ndarray, R_chain: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Attitudes (K,3,3), positions (K,3) and velocities (K,3) at ``t_key`` from an earlier
-    solution ``initial``: its nearest keyframe's attitude carried on by the chained
-    preintegrated rotations ``R_chain`` (K,3,3), cubic Hermite positions and linear velocities."""
-    c = nearest_sample(initial.t_s, t_key)
-    at_c = nearest_sample(t_key, initial.t_s)[c]  # this run's keyframe nearest to each one's anchor
-    R = initial.R_nb[c] @ np.swapaxes(R_chain[at_c], 1, 2) @ R_chain
-    pos = hermite_interpolate(initial.t_s, initial.pos_n, initial.vel_n, t_key)
-    i = np.clip(np.searchsorted(initial.t_s, t_key) - 1, 0, initial.t_s.size - 2)
-    u = ((t_key - initial.t_s[i]) / (initial.t_s[i + 1] - initial.t_s[i]))[:, None]
-    vel = (1 - u) * initial.vel_n[i] + u * initial.vel_n[i + 1]
-    return R, pos, vel
-
-
-def _station_states(prisms, state: _State) -> np.ndarray | None:
-    """The total-station corrections (J,8): estimated, or as held (``prisms.fixed_states``)."""
-    if prisms is None:
-        return None
-    return prisms.fixed_states.copy() if prisms.stations_fixed else state.ts
-
-
 def _station_covariance(prisms, tree: gtsam.GaussianBayesTree) -> np.ndarray | None:
     """Joint marginal covariance (8J,8J) of the estimated station corrections from the solve's
     Bayes tree (pairwise joints: the stations sit in every separator, near the root), or None
-    when there are none (no prisms, or stations held)."""
-    if prisms is None or prisms.stations_fixed:
+    when there are no prisms."""
+    if prisms is None:
         return None
     J, d = len(prisms.station_ids), fx.STATION_STATE_DIM
     cov = np.zeros((J * d, J * d))
@@ -1116,7 +1080,7 @@ def _with_prism_fixes(problem: FusionProblem) -> FusionProblem:
     """The problem with its prism readings standing in as position fixes (for the alignment's
     heading and the initial positions only)."""
     from dataclasses import replace
-    pr, ok = problem.prisms, problem.prisms.usable()  # not the step check's mis-locks (issue 8)
+    pr, ok = problem.prisms, problem.prisms.usable()  # not the step check's mis-locks
     fixes = GnssFixes(pr.t_s[ok], pr.pos_n[ok], pr.cov_n[ok], np.full(ok.size, 4), pr.lever_arm_b)
     return replace(problem, gnss=fixes)
 

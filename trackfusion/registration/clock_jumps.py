@@ -16,7 +16,7 @@ times (IMU clock, with the correlation's offset):
 own offset error, and ``J = -e1 / b`` is the clock step (a timing error ``dt`` moves a reading by
 ``v dt``). Weighted least squares with each reading's polar covariance along the axis. Readings
 at rest carry no timing information and are left out, so a step during a stop is found from
-the motion on both sides of it. Windows spanning a tracking gap (``fusion.faults.PRISM_GAP_MIN_S``)
+the motion on both sides of it. Windows spanning a tracking gap (``registration.readings.PRISM_GAP_MIN_S``)
 other than at their split, or whose fit does not explain the readings (a mis-lock: normalised chi-square above
 ``CHI2_MAX``) are skipped. Every split between moving readings is a candidate; the one of
 largest ``|J| / sigma_J`` is refined to the split of smallest chi-square within a quarter
@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import RegistrationError
-from ..fusion.faults import PRISM_GAP_MIN_S
+from .readings import PRISM_GAP_MIN_S
 
 #: seconds of moving readings on each side of a candidate split
 WINDOW_S = 8.0

@@ -46,7 +46,7 @@ def classify_flags(flagged: np.ndarray, min_run: int, max_gap: int) -> tuple[np.
 
 
 def gate_prisms(blocks, used: np.ndarray, prisms, settings) -> tuple[np.ndarray, list[dict]]:
-    """Gate the used readings (indices into ``prisms``, a :class:`~trackfusion.fusion.problem.PrismReadings`)
+    """Gate the used readings (indices into ``prisms``, a :class:`~trackfusion.registration.readings.PrismReadings`)
     whose factors are ``blocks`` (a ``LinearBlocks`` in the same order). ``settings``: the
     total-station factor settings (``gate_chi2``, ``mislock_min_run``, ``mislock_max_gap``).
     Returns (readings still used, [{"station", "t_s", "reason", "nis"}] newly rejected). The gate
@@ -71,7 +71,7 @@ def gate_prisms(blocks, used: np.ndarray, prisms, settings) -> tuple[np.ndarray,
 
 
 def prefused_rejections(prisms) -> tuple[np.ndarray, list[dict]]:
-    """The readings of ``prisms`` (:class:`~trackfusion.fusion.problem.PrismReadings`) the fusion
+    """The readings of ``prisms`` (:class:`~trackfusion.registration.readings.PrismReadings`) the fusion
     starts with, and ``[{"station", "t_s", "reason": "mis_lock", "nis": None, "detected_by":
     "step_check"}]`` for those flagged before it (``prisms.flagged``)."""
     used = prisms.usable()

@@ -3,7 +3,7 @@
 :func:`prepare_prisms`: set-ups (given or resected), readings to ``n``, each station's clock
 synchronised (:mod:`.timesync`) and its clock jumps removed (:mod:`.clock_jumps`), readings of another reflector
 flagged by the step check first (:mod:`.steps`; left out of all of these and of the fusion), optionally the seed's registration applied
-(:mod:`.seed_method`), and the :class:`~trackfusion.fusion.problem.PrismReadings` with the
+(:mod:`.seed_method`), and the :class:`~trackfusion.registration.readings.PrismReadings` with the
 priors of each station's correction state.
 
 :func:`registration_report`: residuals between consecutive stations over their shared
@@ -25,9 +25,9 @@ import numpy as np
 from .. import geodesy
 from ..errors import RegistrationError
 from ..evaluation.overlap import overlap_residuals, overlap_statistics
-from ..fusion.problem import PrismReadings
 from ..sensors.types import OdometerData, TotalStationData
 from . import timesync
+from .readings import PrismReadings
 from .clock_jumps import correct_station_clock_jumps
 from .steps import motionless_mislocks, station_mislocks
 from .polar import StationSetup

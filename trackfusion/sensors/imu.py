@@ -68,14 +68,3 @@ IMU_GRADES: dict[str, ImuSpec] = {
                              accel_scale_ppm=300.0, accel_misalignment_arcsec=100.0,
                              gyro_range_deg_per_s=450.0, accel_range_mps2=78.4532),  # 8 g
 }
-
-
-
-
-def __getattr__(name: str):
-    """Transitional: ``simulate_imu`` moved to :mod:`trackfusion.simulation.imu`; this lazy alias
-    serves importers not yet updated (listed in tests/test_layout.py) and goes once they are."""
-    if name == "simulate_imu":
-        from ..simulation.imu import simulate_imu
-        return simulate_imu
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

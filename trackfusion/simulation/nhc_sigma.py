@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..track.irregularity import IrregularitySpec, synthesize
+from .irregularity import IrregularitySpec, synthesize
 from ..track.nhc_noise import gyro_noise_velocity_sigma_mps, nhc_velocity_rms_mps, nhc_velocity_series_mps
 from .config import ScenarioConfig
 

@@ -23,13 +23,14 @@ from pydantic import ValidationError
 from .. import geodesy
 from ..errors import ConfigError, config_error_from_validation
 from ..rotations import quat_from_R, ypr_from_R
-from ..sensors import aiding
-from ..sensors.imu import IMU_GRADES, ImuSpec, simulate_imu
+from ..sensors.imu import IMU_GRADES, ImuSpec
 from ..sensors.types import SensorLog
 from ..track.design import DesignAlignment
-from ..track.irregularity import IrregularitySpec, synthesize
 from ..track.rails import TrackModel
+from . import aiding
 from .config import ScenarioConfig, load_scenario
+from .imu import simulate_imu
+from .irregularity import IrregularitySpec, synthesize
 from .motion import Hold, MotionProfile, Move, compile_plan
 from .trolley import TrolleyGeometry, TrolleyKinematics
 

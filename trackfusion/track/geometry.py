@@ -495,13 +495,3 @@ def _repeatability(tables: list[dict[str, np.ndarray]], cfg: GeometryConfig, ste
                     continue
                 out[col] = r.to_json()
     return out
-
-
-def __getattr__(name: str):
-    """Transitional: the pipeline's geometry step and the design / tolerance file readers moved to
-    the I/O boundary :mod:`trackfusion.geometry_inputs`; this lazy alias serves importers not yet
-    updated (listed in tests/test_layout.py) and goes once they are."""
-    if name in ("check_geometry_inputs", "geometry_for_run"):
-        from .. import geometry_inputs
-        return getattr(geometry_inputs, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

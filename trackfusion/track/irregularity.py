@@ -76,12 +76,3 @@ class IrregularityField:
         """Per-rail irregularities [m] at chainages ``s_m`` (N,): ``RAIL_SERIES`` -> (N,)."""
         y = self._spline(np.asarray(s_m, dtype=float))
         return {k: y[..., i] for i, k in enumerate(RAIL_SERIES)}
-
-
-def __getattr__(name: str):
-    """Transitional: the synthesis moved to :mod:`trackfusion.simulation.irregularity`; this lazy alias
-    serves importers not yet updated (listed in tests/test_layout.py) and goes once they are."""
-    if name in ("IrregularitySpec", "synthesize"):
-        from ..simulation import irregularity
-        return getattr(irregularity, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
