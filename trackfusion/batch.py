@@ -164,21 +164,9 @@ def _local(jobs, workers: int, say, force: bool = False) -> list[SurveyOutcome]:
 
 
 def _dask(jobs, workers: int, address: str | None, say, force: bool = False) -> list[SurveyOutcome]:
-    try:
-        from distributed import Client, LocalCluster, as_completed
-    except ImportError:
-        raise ConfigError("--engine dask: Dask is not installed (pip install 'trackfusion[distributed]')") from None
-    cluster = None
-    try:
-        if address is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-            client = Client(cluster)
-        else:
-            client = Client(address, timeout=30)
-    except (OSError, TimeoutError) as exc:
-        if cluster is not None:
-            cluster.close()
-        raise ConfigError(f"--address {address}: cannot reach the Dask scheduler ({exc})") from None
+    from .parallel import open_dask_client
+    client, cluster = open_dask_client(address, workers, "--engine dask", "--address")
+    from distributed import as_completed
     say(f"batch: dask scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers")
     outcomes: dict[int, SurveyOutcome] = {}
     try:

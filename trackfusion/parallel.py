@@ -147,30 +147,36 @@ def _send(group: list[int], proc, conn, payload: bytes) -> None:
 _CLIENTS: dict = {}
 
 
-def dask_client(address: str | None, workers: int):
-    """The Dask client of ``smoother.engine: dask``: of the scheduler at ``address``, else of a
-    ``distributed.LocalCluster`` of ``workers`` single-threaded processes; one per process and
-    configuration, closed at exit. Raises :class:`~trackfusion.errors.ConfigError` (exit 2) when
-    Dask is missing or the scheduler cannot be reached (as ``trackfusion batch --engine dask``)."""
-    import atexit
+def open_dask_client(address: str | None, workers: int, engine_key: str, address_key: str):
+    """A new Dask ``(client, cluster)``: of the scheduler at ``address`` (``cluster`` None), else of
+    a ``distributed.LocalCluster`` of ``workers`` single-threaded processes. Raises
+    :class:`~trackfusion.errors.ConfigError` (exit 2) naming ``engine_key`` when Dask is missing,
+    ``address_key`` when the scheduler cannot be reached; shared by ``smoother.engine: dask`` and
+    ``trackfusion batch --engine dask``."""
     from .errors import ConfigError
-    if (address, workers) in _CLIENTS:
-        return _CLIENTS[(address, workers)][0]
     try:
         from distributed import Client, LocalCluster
     except ImportError:
-        raise ConfigError("smoother.engine: dask: Dask is not installed (pip install 'trackfusion[distributed]')") from None
+        raise ConfigError(f"{engine_key}: Dask is not installed (pip install 'trackfusion[distributed]')") from None
     cluster = None
     try:
         if address is None:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-            client = Client(cluster)
-        else:
-            client = Client(address, timeout=30)
+            return Client(cluster), cluster
+        return Client(address, timeout=30), None
     except (OSError, TimeoutError) as exc:
         if cluster is not None:
             cluster.close()
-        raise ConfigError(f"smoother.address {address}: cannot reach the Dask scheduler ({exc})") from None
+        raise ConfigError(f"{address_key} {address}: cannot reach the Dask scheduler ({exc})") from None
+
+
+def dask_client(address: str | None, workers: int):
+    """The Dask client of ``smoother.engine: dask`` (:func:`open_dask_client`): one per process and
+    configuration, closed at exit."""
+    import atexit
+    if (address, workers) in _CLIENTS:
+        return _CLIENTS[(address, workers)][0]
+    client, cluster = open_dask_client(address, workers, "smoother.engine: dask", "smoother.address")
     _CLIENTS[(address, workers)] = (client, cluster)
     if len(_CLIENTS) == 1:
         atexit.register(close_dask_clients)
