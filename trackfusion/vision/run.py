@@ -20,18 +20,15 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
 from ..errors import ConfigError, SensorDataError
+from ..strict import StrictModel
 
 RUN_FILES = ("geometry.csv", "geometry.json", "metrics.json", "report.html")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class VisionSection(_Strict):
+class VisionSection(StrictModel):
     """``log``: the raw log (IMU, encoder, both cameras); ``calibration``: the file
     ``trackfusion calibrate-vision`` wrote; ``design``: curvature and cant against chainage
     (:mod:`.design_table`); the rail profile and nominal gauge of the drawing; ``workers``:
@@ -45,11 +42,11 @@ class VisionSection(_Strict):
     workers: int = Field(2, ge=1)
 
 
-class VisionOutputs(_Strict):
+class VisionOutputs(StrictModel):
     report: bool = True
 
 
-class VisionPipelineConfig(_Strict):
+class VisionPipelineConfig(StrictModel):
     name: str = "vision survey"
     description: str = ""
     vision: VisionSection
