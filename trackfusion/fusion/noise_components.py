@@ -12,13 +12,12 @@ whitened, linearised system ``A (A^T A)^-1 A^T`` (rows Huber-weighted as the sol
 
 **Redundancy.** ``tr(H_gc)`` is the Hutchinson estimate ``E[z_gc^T (H z)_gc]`` over random
 right-hand sides ``z ~ N(0, I)`` of every row of the graph (the IMU and prior factors too):
-``H z`` is ``A delta`` with ``delta`` the least-squares step of the system with its right-hand
-side replaced by ``z``. Hand-written because GTSAM has no trace of the hat matrix: the step is
-the one linear solve the smoother makes (any split of it, fusion/partitioned.py, gives the
-same numbers to rounding), with ``z`` put in through one extra unary factor per variable
-carrying the gradient ``A^T (z - b)`` (the factors' own ``b`` stay: GTSAM cannot rebuild a
-five-key IMU factor with another ``b`` from Python). Unbiased; its variance per draw is at
-most ``2 tr(H_gc)``: the draws' scatter is part of the stated uncertainty.
+``H z = A delta`` with ``delta = (A^T A)^-1 A^T z``, solved for all draws at once with the Bayes
+tree the solve's last Gauss-Newton step already made (fusion/normal_solve.py: two triangular
+passes, no new elimination; the vectorised groups' rows at the solution, one converged step
+past that tree's linearisation). Hand-written because GTSAM has no trace of the hat matrix.
+Unbiased; its variance per draw is at most ``2 tr(H_gc)``: the draws' scatter is part of the
+stated uncertainty.
 
 **Estimate, with the datasheet as prior** (an inverse-gamma prior of :data:`PRIOR_DOF` degrees
 of freedom at 1)::
@@ -44,6 +43,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from . import factors as fx
+from .normal_solve import TreeFactor, key_dim, solve_normal
 
 #: degrees of freedom of the datasheet as a prior of each variance factor
 PRIOR_DOF = 8.0
@@ -59,12 +59,6 @@ MAX_STEP_GAIN = 5.0
 GATE_TAIL = 1e-4
 #: random right-hand sides of the redundancy estimate
 DRAWS = 4
-#: weight of the unary factors that carry the random gradient: an information of DRAW_WEIGHT^2
-#: per variable (0.01: a sigma of 10 m or rad, beside the weakest state's ~4e3 of a GNSS error:
-#: tr(H) biased by ~1e-6 relative), and a right-hand side ``g / DRAW_WEIGHT`` whose rounding
-#: grows as it shrinks (1e-4: tr(H) of the one-batch and the partitioned solve 2 apart in 600;
-#: 0.1: 1e-3 apart)
-DRAW_WEIGHT = 0.1
 #: significant digits an applied factor is rounded to (its own uncertainty is >= 1 %): the
 #: one-batch and the partitioned solve, whose estimates differ by rounding, apply the same factor
 APPLIED_DIGITS = 3
@@ -83,7 +77,6 @@ COMPONENTS: dict[str, tuple[str, ...] | None] = {
 #: survey seed 2: the 5 m vertical ADEV 0.053 mm at the trolley's 0.01 mm, 0.063 mm at the
 #: estimated 0.002 mm)
 FLOOR_GROUPS = ("wheel_path",)
-_KEY_DIM = {"x": 6, "v": 3, "b": 6, "s": 1, "e": 3, "t": fx.STATION_STATE_DIM}
 
 
 def _component_index(name: str, blocks: fx.LinearBlocks, labels: np.ndarray | None) -> tuple[np.ndarray, list[str]]:
@@ -159,17 +152,17 @@ class NoiseComponents:
             return scale_blocks(blocks, f[idx])
         return scaled
 
-    def update(self, builders: list, graph_gfg: gtsam.GaussianFactorGraph, state,
-               solve_linear: Callable[[gtsam.GaussianFactorGraph], gtsam.VectorValues],
-               labels: dict[str, np.ndarray]) -> bool:
+    def update(self, builders: list, state, gfg: gtsam.GaussianFactorGraph, graph_factors: int,
+               factor: TreeFactor, labels: dict[str, np.ndarray]) -> bool:
         """Estimate every group's factors from a solve (module docstring): ``builders`` its
-        (wrapped) vectorised factors' builders, ``graph_gfg`` the linearisation of its GTSAM
-        factors at ``state``, ``solve_linear`` its linear solve. Returns whether an applied
-        factor moved enough to solve again."""
+        (wrapped) vectorised factors' builders, ``state`` its estimate, ``gfg`` its (last)
+        linearisation, whose first ``graph_factors`` factors are the GTSAM-built ones, and
+        ``factor`` that linearisation's Bayes tree (fusion/normal_solve.py). Returns whether an
+        applied factor moved enough to solve again."""
         if not any(n in COMPONENTS for n, _ in builders):
             return False
         blocks = {n: b(state) for n, b in builders}
-        products = _hat_products(graph_gfg, blocks, labels, solve_linear, self.seed)
+        products = _hat_products(_graph_rows(gfg, graph_factors), blocks, factor, self.seed)
         moved = False
         for name, blk in blocks.items():
             if name not in COMPONENTS:
@@ -239,43 +232,33 @@ def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray
     return q <= chi2.ppf(1.0 - GATE_TAIL, blk.residual.shape[1])
 
 
-def _hat_products(graph_gfg: gtsam.GaussianFactorGraph, blocks: dict[str, fx.LinearBlocks], labels: dict,
-                  solve_linear: Callable, seed: int) -> dict[str, np.ndarray]:
+def _hat_products(graph_rows: list, blocks: dict[str, fx.LinearBlocks], factor: TreeFactor,
+                  seed: int) -> dict[str, np.ndarray]:
     """Per estimated group, the row products ``z * (H z)`` (D, K, m) of :data:`DRAWS` random
     right-hand sides (module docstring: their sum over a component's rows is the Hutchinson
     estimate of its ``tr(H)``, their mean per row of ``H``'s diagonal). ``blocks``: every
-    vectorised factor group at the solution; ``graph_gfg``: the other factors, linearised."""
+    vectorised factor group at the solution; ``graph_rows``: the other factors' rows
+    (:func:`_graph_rows`); ``factor``: the solve's Bayes tree (fusion/normal_solve.py), with which
+    ``H z = A (A^T A)^-1 A^T z`` costs two triangular passes for all draws at once."""
     rng = np.random.default_rng(seed)
-    rows = _graph_rows(graph_gfg)
-    base = _copy(graph_gfg)
-    for blk in blocks.values():
-        fx.to_jacobian_factors(blk, base)
-    aw = {n: _weighted(blk) for n, blk in blocks.items()}
-    draws = {n: [] for n in blocks if n in COMPONENTS}
-    for _ in range(DRAWS):
-        z_graph = [rng.standard_normal(b.size) for _, _, b in rows]
-        z_own = {n: rng.standard_normal(blk.residual.shape) for n, blk in blocks.items()}
-        grad: dict[int, np.ndarray] = {}
-        for (keys, A, b), z in zip(rows, z_graph):
-            _add_gradient(grad, keys, A, z - b)
-        for n, (A, b) in aw.items():
-            for key_arr, J in zip(blocks[n].keys, A):
-                _add_gradient_batch(grad, key_arr, J, z_own[n] - b)
-        extra = _copy(base)
-        for key, g in grad.items():
-            extra.add(gtsam.JacobianFactor(key, DRAW_WEIGHT * np.eye(g.size), g / DRAW_WEIGHT,
-                                           gtsam.noiseModel.Unit.Create(g.size)))
-        delta = solve_linear(extra)
-        for n in draws:
-            hz = sum(np.einsum("kij,kj->ki", J, _gather(delta, k, J.shape[2])) for k, J in zip(blocks[n].keys, aw[n][0]))
-            draws[n].append(z_own[n] * hz)
-    return {n: np.array(d) for n, d in draws.items()}
-
-
-def _copy(gfg: gtsam.GaussianFactorGraph) -> gtsam.GaussianFactorGraph:
-    """A new graph of the same (shared) factors."""
-    out = gtsam.GaussianFactorGraph()
-    out.push_back(gfg)
+    aw = {n: _weighted(blk)[0] for n, blk in blocks.items()}
+    grad = np.zeros((factor.size, DRAWS))  # A^T z, per draw
+    for keys, A, b in graph_rows:
+        z = rng.standard_normal((b.size, DRAWS))
+        for k, Aj in zip(keys, A):
+            o = factor.offset[k]
+            grad[o:o + Aj.shape[1]] += Aj.T @ z
+    z_own = {n: rng.standard_normal((DRAWS,) + blk.residual.shape) for n, blk in blocks.items()}
+    rows = {n: [factor.rows(k, J.shape[2]) for k, J in zip(blocks[n].keys, aw[n])] for n in blocks}
+    for n, J_slots in aw.items():
+        for idx, J in zip(rows[n], J_slots):
+            np.add.at(grad, idx, np.einsum("kmd,tkm->kdt", J, z_own[n]))
+    delta = solve_normal(factor, grad)
+    out = {}
+    for n in blocks:
+        if n in COMPONENTS:
+            hz = sum(np.einsum("kmd,kdt->tkm", J, delta[idx]) for idx, J in zip(rows[n], aw[n]))
+            out[n] = z_own[n] * hz
     return out
 
 
@@ -286,42 +269,20 @@ def _weighted(blk: fx.LinearBlocks) -> tuple[list[np.ndarray], np.ndarray]:
     return [blk._w(J) * sw[:, None, None] for J in blk.jacobians], -blk.whitened() * sw[:, None]
 
 
-def _graph_rows(gfg: gtsam.GaussianFactorGraph) -> list[tuple[list[int], list[np.ndarray], np.ndarray]]:
-    """(keys, whitened blocks, b) of every factor already in ``gfg`` (the GTSAM-built ones)."""
+def _graph_rows(gfg: gtsam.GaussianFactorGraph, count: int | None = None
+                ) -> list[tuple[list[int], list[np.ndarray], np.ndarray]]:
+    """(keys, whitened blocks, b) of the first ``count`` (default: all) factors of ``gfg``."""
     out = []
-    for i in range(gfg.size()):
+    for i in range(gfg.size() if count is None else count):
         f = gfg.at(i)
         if f is None:
             continue
         A, b = f.jacobian()
         keys = list(f.keys())
-        dims = [_KEY_DIM[chr(gtsam.Symbol(k).chr())] for k in keys]
+        dims = [key_dim(k) for k in keys]
         cuts = np.cumsum([0] + dims)
         out.append((keys, [A[:, cuts[j]:cuts[j + 1]] for j in range(len(keys))], np.asarray(b).ravel()))
     return out
-
-
-def _add_gradient(grad: dict, keys: list[int], A: list[np.ndarray], r: np.ndarray) -> None:
-    for k, Aj in zip(keys, A):
-        g = Aj.T @ r
-        grad[k] = grad[k] + g if k in grad else g
-
-
-def _add_gradient_batch(grad: dict, keys: np.ndarray, J: np.ndarray, r: np.ndarray) -> None:
-    """Add ``J_i^T r_i`` (J (K, m, d), r (K, m)) to the gradient of each key ``keys[i]``."""
-    g = np.einsum("kmd,km->kd", J, r)
-    uniq, inv = np.unique(keys, return_inverse=True)
-    total = np.zeros((uniq.size, J.shape[2]))
-    np.add.at(total, inv, g)
-    for k, v in zip(uniq.tolist(), total):
-        grad[k] = grad[k] + v if k in grad else v
-
-
-def _gather(delta: gtsam.VectorValues, keys: np.ndarray, dim: int) -> np.ndarray:
-    """(K, dim) the step at ``keys`` (K,)."""
-    uniq, inv = np.unique(keys, return_inverse=True)
-    vals = np.array([delta.at(int(k)) for k in uniq]).reshape(uniq.size, dim)
-    return vals[inv]
 
 
 def configured_sigmas(fs) -> dict[str, dict[str, tuple[float, str]]]:

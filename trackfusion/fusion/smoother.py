@@ -28,6 +28,7 @@ from . import gnss_noise
 from . import noise_components as nc
 from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
+from .normal_solve import tree_factor
 from .preintegration import preintegrate
 from .problem import FusionProblem, GnssFixes
 from ..parallel import dask_client
@@ -950,8 +951,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
             used = used[~bad]
             newly_rejected |= bool(np.any(bad))
         if components is not None and not newly_rejected:
-            newly_rejected = _estimate_components(components, G, sol, values, partition,
-                                                  _component_labels(prisms, prism_used))
+            newly_rejected = _estimate_components(components, G, sol, _component_labels(prisms, prism_used))
         if not newly_rejected:
             if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
                 sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol,
@@ -999,16 +999,17 @@ def _component_labels(prisms, prism_used: np.ndarray | None) -> dict[str, np.nda
     return {"prism": np.asarray(prisms.station_ids)[prisms.station[prism_used]]} if prisms is not None else {}
 
 
-def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved", values: gtsam.Values,
-                         partition: "Partition | None", labels: dict[str, np.ndarray]) -> bool:
-    """The groups' noise from the solve ``sol`` (fusion/noise_components.py), its linear
-    solves made as the solve's own (in parts when ``partition``); whether to solve again."""
-    def solve_linear(gfg: gtsam.GaussianFactorGraph) -> gtsam.VectorValues:
-        if partition is not None:
-            return PartitionedSolver(partition, partition.workers).solve(gfg)[0]
-        return _eliminate(gfg, sol.ordering).optimize()
-
-    return components.update(G.builders, G.graph.linearize(values), sol.state, solve_linear, labels)
+def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved",
+                         labels: dict[str, np.ndarray]) -> bool:
+    """The groups' noise from the solve ``sol`` (fusion/noise_components.py) with its last
+    linearisation's Bayes tree: a one-batch solve's own; a partitioned solve's (whose parts
+    are not one tree) made here once, in the order a one-batch solve takes, so that the
+    estimates are the one-batch ones to rounding. Whether to solve again."""
+    tree, ordering = sol.tree, sol.ordering
+    if not isinstance(tree, gtsam.GaussianBayesTree):
+        ordering = gtsam.Ordering.ColamdGaussianFactorGraph(sol.gfg)
+        tree = _eliminate(sol.gfg, ordering)
+    return components.update(G.builders, sol.state, sol.gfg, G.graph.size(), tree_factor(tree, ordering), labels)
 
 
 def _sigma_marginals(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
