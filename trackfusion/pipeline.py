@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Literal, Mapping
 
@@ -25,6 +25,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 
 from . import geodesy
 from .errors import ConfigError, FusionError, TrackfusionError, config_error_from_validation
+from .yamlio import ConfigFile
 from .fusion import faults, input_checks, preprocess
 from .fusion.imu_noise import estimate_imu_noise
 from .fusion.preintegration import ImuNoise
@@ -181,16 +182,10 @@ class PipelineConfig(StrictModel):
 
 
 @dataclass
-class Pipeline:
+class Pipeline(ConfigFile):
     """A validated pipeline and the folder its relative paths start from."""
 
-    config: PipelineConfig
-    base_dir: Path
-    source: str
-
-    def path(self, p: str) -> Path:
-        q = Path(p)
-        return q if q.is_absolute() else self.base_dir / q
+    config: PipelineConfig = field(kw_only=True)
 
 
 def parse_pipeline(data: Any, source: str, base_dir: Path) -> Pipeline:
@@ -202,7 +197,7 @@ def parse_pipeline(data: Any, source: str, base_dir: Path) -> Pipeline:
         config = PipelineConfig.model_validate(data)
     except ValidationError as exc:
         raise config_error_from_validation(_UserPaths(exc, "trolley" in data), source) from None
-    pipeline = Pipeline(config, base_dir, source)
+    pipeline = Pipeline(base_dir, source, config=config)
     _check_inputs(pipeline)
     return pipeline
 

@@ -5,6 +5,7 @@ line naming the file, the line and the column (``pipeline.yaml:12:5: not valid Y
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -38,3 +39,17 @@ def load_yaml(path: str | os.PathLike, what: str = "file") -> Any:
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{p}: not valid YAML: not UTF-8 text (byte {exc.start})") from None
     return parse_yaml(text, str(p))
+
+
+@dataclass
+class ConfigFile:
+    """A validated configuration file: its ``source`` (the name errors give) and ``base_dir``,
+    the folder its relative paths start from."""
+
+    base_dir: Path
+    source: str
+
+    def path(self, p: str) -> Path:
+        """``p`` as given when absolute, else relative to :attr:`base_dir`."""
+        q = Path(p)
+        return q if q.is_absolute() else self.base_dir / q

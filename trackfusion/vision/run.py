@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -24,6 +24,7 @@ from pydantic import Field, ValidationError
 
 from ..errors import ConfigError, SensorDataError
 from ..strict import StrictModel
+from ..yamlio import ConfigFile
 
 RUN_FILES = ("geometry.csv", "geometry.json", "metrics.json", "report.html")
 
@@ -54,16 +55,10 @@ class VisionPipelineConfig(StrictModel):
 
 
 @dataclass
-class VisionPipeline:
+class VisionPipeline(ConfigFile):
     """A validated vision pipeline and the folder its relative paths start from."""
 
-    config: VisionPipelineConfig
-    base_dir: Path
-    source: str
-
-    def path(self, p: str) -> Path:
-        q = Path(p)
-        return q if q.is_absolute() else self.base_dir / q
+    config: VisionPipelineConfig = field(kw_only=True)
 
     def inputs(self) -> list[Path]:
         v = self.config.vision
@@ -82,7 +77,7 @@ def parse_vision_pipeline(data: dict, source: str, base_dir: Path) -> VisionPipe
     except ValidationError as exc:
         e = exc.errors()[0]
         raise ConfigError(f"{source}: {'.'.join(str(x) for x in e['loc'])}: {e['msg']}") from None
-    p = VisionPipeline(cfg, base_dir, source)
+    p = VisionPipeline(base_dir, source, config=cfg)
     for key in ("log", "design", "calibration"):
         f = p.path(getattr(cfg.vision, key))
         if not f.is_file():
