@@ -697,8 +697,8 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         metrics["timings_s"] = timings
         metrics["run_time_s"] = timings["total_s"]
         say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
-        files = write_outputs(stage, out, table, metrics, problem.origin, cfg, geometry, raw=log,
-                              fused_table=smoothed.fused_table, early=early, background=background)
+        files = write_outputs(stage, out, metrics, problem.origin, cfg,
+                              OutputSources(table, geometry, log, smoothed.fused_table, early, background))
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
     from .sensors.fileio import CsvTableOnDisk
     return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
@@ -847,26 +847,38 @@ def _trajectory_writer(path: Path, origin: geodesy.Origin, cfg: PipelineConfig):
                                  "config": cfg.model_dump(mode="json")})
 
 
-def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, metrics: dict,
-                  origin: geodesy.Origin, cfg: PipelineConfig, geometry=None, raw: SensorLog | None = None,
-                  fused_table: dict[str, np.ndarray] | None = None, early=None,
-                  background: ForkedTasks | None = None) -> list[str]:
+@dataclass
+class OutputSources:
+    """What :func:`write_outputs` writes from. ``table``: the whole trajectory.csv table, or
+    None when it is only on disk (a run in chunks); ``geometry``: the track geometry or None;
+    ``raw``: the input log as read, whose topics fused.mcap carries; ``fused_table``: the
+    trajectory rows fused.mcap shows when not ``table`` (a long run's rows at
+    :data:`FUSED_POSE_RATE_HZ`); ``early``: the forked task already writing geometry.csv and
+    fused.mcap and drawing the table figures (:func:`~trackfusion.report.outputs.start_table_outputs`);
+    ``background``: the run's forked tasks, all waited for (and their failures raised) before
+    the files are listed."""
+
+    table: dict[str, np.ndarray] | None
+    geometry: Any = None
+    raw: SensorLog | None = None
+    fused_table: dict[str, np.ndarray] | None = None
+    early: Any = None
+    background: ForkedTasks | None = None
+
+
+def write_outputs(stage: Path, out: Path, metrics: dict, origin: geodesy.Origin, cfg: PipelineConfig,
+                  src: OutputSources) -> list[str]:
     """Write the outputs but trajectory.csv into the staging folder ``stage`` (:meth:`~trackfusion.outdir.OutputFolder.staging`;
-    ``out`` is the folder they go to); returns the names of all staged files. ``table``: the
-    whole trajectory.csv table, or None when it is only on disk (a run in chunks);
-    ``fused_table``: the trajectory rows fused.mcap shows when not ``table`` (a long run's rows
-    at :data:`FUSED_POSE_RATE_HZ`); ``raw``: the input log as read, whose topics fused.mcap carries.
-    ``early``: the forked task already writing geometry.csv and fused.mcap and drawing the table
-    figures (:func:`~trackfusion.report.outputs.start_table_outputs`); ``background``: the run's
-    forked tasks, all waited for (and their failures raised) before the files are listed."""
+    ``out`` is the folder they go to) from ``src``; returns the names of all staged files."""
+    table, geometry, early = src.table, src.geometry, src.early
     from .report.outputs import write_table_outputs
     from .sensors.fileio import write_json_atomic
     tic_write = time.perf_counter()  # timings_s.write_s
     write_json_atomic(stage / "metrics.json", metrics)
     # --- geometry.csv, Foxglove log and report, from the staged files (report last) ---
     if early is None:
-        images = write_table_outputs(stage, table if fused_table is None else fused_table, origin, cfg, geometry,
-                                     raw, FUSED_POSE_RATE_HZ)
+        images = write_table_outputs(stage, table if src.fused_table is None else src.fused_table, origin, cfg,
+                                     geometry, src.raw, FUSED_POSE_RATE_HZ)
     else:  # the metrics' figures drawn here while the child may still be drawing the tables'
         from .report.html import metrics_images
         from .sensors.fileio import read_json
@@ -877,8 +889,8 @@ def write_outputs(stage: Path, out: Path, table: dict[str, np.ndarray] | None, m
         tables = {**({"trajectory.csv": table} if table is not None else {}),  # no re-parsing of these CSVs
                   **({"geometry.csv": geometry.table} if geometry is not None else {})}
         write_report(stage, stage / "report.html", shown_dir=out, tables=tables, images=images)
-    if background is not None:
-        background.wait()  # trajectory.csv's rows (renamed into the stage when written)
+    if src.background is not None:
+        src.background.wait()  # trajectory.csv's rows (renamed into the stage when written)
     # --- end of the staged outputs ---
     # metrics.json once more, last, with the time the writing took
     timings = metrics.setdefault("timings_s", {})

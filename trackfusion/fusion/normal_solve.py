@@ -18,11 +18,11 @@ cost one small matrix product per clique and pass, without a new elimination.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from ..errors import FusionError
 from .factors import STATION_STATE_DIM
@@ -32,6 +32,7 @@ from .factors import STATION_STATE_DIM
 KEY_DIM = {"x": 6, "v": 3, "b": 6, "s": 1, "e": 3, "t": STATION_STATE_DIM}
 
 
+@functools.lru_cache(maxsize=None)
 def key_dim(key: int) -> int:
     """Dimension of the smoother's variable ``key`` (:data:`KEY_DIM`)."""
     return KEY_DIM[chr(gtsam.Symbol(key).chr())]
@@ -40,12 +41,13 @@ def key_dim(key: int) -> int:
 @dataclass
 class _Clique:
     """One conditional: its frontal rows ``[start, stop)`` of the stacked vector, its
-    separator's rows ``sep`` (n_s,), ``R`` (n_f, n_f) and ``S`` (n_f, n_s)."""
+    separator's rows ``sep`` (n_s,), ``R_inv`` the inverse of its ``R`` (n_f, n_f) and ``S``
+    (n_f, n_s)."""
 
     start: int
     stop: int
     sep: np.ndarray
-    R: np.ndarray
+    R_inv: np.ndarray
     S: np.ndarray
 
 
@@ -57,6 +59,7 @@ class TreeFactor:
     offset: dict[int, int]
     size: int
     cliques: list[_Clique]
+    _sorted: tuple[np.ndarray, np.ndarray] | None = None  # the keys sorted, and their offsets
 
     def stack(self, vectors: dict[int, np.ndarray], columns: int) -> np.ndarray:
         """(size, columns) the per-key (d, columns) blocks of ``vectors`` stacked (keys missing: 0)."""
@@ -68,41 +71,68 @@ class TreeFactor:
 
     def rows(self, keys: np.ndarray, dim: int) -> np.ndarray:
         """(K, dim) row indices of the variables ``keys`` (K,) of dimension ``dim``."""
-        start = np.array([self.offset[int(k)] for k in np.asarray(keys).tolist()], dtype=np.int64)
-        return start[:, None] + np.arange(dim)
+        if self._sorted is None:
+            k = np.fromiter(self.offset.keys(), np.uint64, len(self.offset))
+            o = np.fromiter(self.offset.values(), np.int64, len(self.offset))
+            order = np.argsort(k)
+            self._sorted = (k[order], o[order])
+        sorted_keys, sorted_offsets = self._sorted
+        keys = np.asarray(keys, np.uint64)
+        at = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+        if not np.array_equal(sorted_keys[at], keys):
+            raise FusionError("normal solve: a variable that the Bayes tree does not hold")
+        return sorted_offsets[at][:, None] + np.arange(dim)
 
 
 def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> TreeFactor:
     """The factor of ``tree``, eliminated in ``ordering``: its cliques in elimination order of
     their first frontal variable (every clique before its parent)."""
-    seen, conds = set(), []
-    for i in range(ordering.size()):
-        cond = tree[ordering.at(i)].conditional()
-        first = cond.firstFrontalKey()
-        if first not in seen:
-            seen.add(first)
-            conds.append(cond)
+    seen: set[int] = set()  # the frontal keys of the cliques taken
     offset: dict[int, int] = {}
-    frontal = []
+    dims: dict[int, int] = {}
+    conds, frontal = [], []
     size = 0
-    for cond in conds:  # the frontal keys: the first ones, whose dimensions fill R
-        keys, n_f, start, n = list(cond.keys()), cond.R().shape[0], size, 0
-        while size - start < n_f:
-            offset[keys[n]] = size
-            size, n = size + key_dim(keys[n]), n + 1
+    for i in range(ordering.size()):
+        key = ordering.at(i)
+        if key in seen:
+            continue
+        cond = tree[key].conditional()
+        R = np.array(cond.R())  # a copy: the tree may go
+        keys, n_f, start, n = list(cond.keys()), R.shape[0], size, 0
+        while size - start < n_f:  # the frontal keys: the first ones, whose dimensions fill R
+            k = keys[n]
+            offset[k], dims[k] = size, key_dim(k)
+            seen.add(k)
+            size, n = size + dims[k], n + 1
+        conds.append((cond, R))
         frontal.append((start, size, keys[n:]))
-    cliques = []
-    for cond, (start, stop, parents) in zip(conds, frontal):
-        R, S = np.array(cond.R()), np.array(cond.S())  # copies: the tree may go
+    blocks = []
+    for (cond, R), (start, stop, parents) in zip(conds, frontal):
+        S = np.array(cond.S())
         model = cond.get_model()
-        if model is not None:  # a constrained factor's elimination keeps its rows' sigmas
+        if model is not None and not model.isUnit():  # a constrained factor's elimination keeps its rows' sigmas
             sigmas = np.asarray(model.sigmas())
             if not np.all(sigmas > 0.0):
                 raise FusionError("normal solve: a hard constraint (a zero sigma) in the factor graph")
             R, S = R / sigmas[:, None], S / sigmas[:, None]
-        sep = np.concatenate([offset[k] + np.arange(key_dim(k)) for k in parents]) if parents else np.zeros(0, np.int64)
-        cliques.append(_Clique(start, stop, sep, R, S))
-    return TreeFactor(offset, size, cliques)
+        sep = np.array([r for k in parents for r in range(offset[k], offset[k] + dims[k])], np.int64)
+        blocks.append((start, stop, sep, R, S))
+    R_inv = _inverses([b[3] for b in blocks])
+    return TreeFactor(offset, size, [_Clique(a, b, sep, r, S) for (a, b, sep, _, S), r in zip(blocks, R_inv)])
+
+
+def _inverses(R: list[np.ndarray]) -> list[np.ndarray]:
+    """The inverses of the square matrices ``R``, inverted in batches of one size (the passes
+    then cost a matrix product per clique; the whitened system's R is conditioned to ~1e7, so
+    an inverse keeps ~9 digits, far more than a Hutchinson draw needs)."""
+    out: list = [None] * len(R)
+    by_size: dict[int, list[int]] = {}
+    for i, r in enumerate(R):
+        by_size.setdefault(r.shape[0], []).append(i)
+    for idx in by_size.values():
+        for i, r in zip(idx, np.linalg.inv(np.stack([R[i] for i in idx]))):
+            out[i] = r
+    return out
 
 
 def solve_normal(factor: TreeFactor, g: np.ndarray) -> np.ndarray:
@@ -110,11 +140,11 @@ def solve_normal(factor: TreeFactor, g: np.ndarray) -> np.ndarray:
     stacked as :meth:`TreeFactor.stack` stacks them (module docstring)."""
     y = np.array(g, dtype=float, copy=True)
     for c in factor.cliques:  # R^T y = g, leaves up
-        yf = solve_triangular(c.R, y[c.start:c.stop], trans="T", check_finite=False)
+        yf = c.R_inv.T @ y[c.start:c.stop]
         y[c.start:c.stop] = yf
         if c.sep.size:
             y[c.sep] -= c.S.T @ yf
     for c in reversed(factor.cliques):  # R x = y, root down
         rhs = y[c.start:c.stop] - c.S @ y[c.sep] if c.sep.size else y[c.start:c.stop]
-        y[c.start:c.stop] = solve_triangular(c.R, rhs, check_finite=False)
+        y[c.start:c.stop] = c.R_inv @ rhs
     return y
