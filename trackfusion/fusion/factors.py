@@ -61,6 +61,11 @@ class LinearBlocks:
         e = np.linalg.norm(self.whitened(), axis=1)
         return np.where(e <= self.huber_k, 1.0, self.huber_k / np.maximum(e, 1e-300))
 
+    def weighted_jacobians(self) -> list[np.ndarray]:
+        """Whitened, Huber-reweighted Jacobian blocks (K, m, d) per key slot, as GTSAM gets them."""
+        sw = np.sqrt(self.weights())
+        return [self._w(J) * sw[:, None, None] for J in self.jacobians]
+
     def cost(self) -> float:
         """0.5 sum of the (robust) squared whitened residuals, as GTSAM's ``error``."""
         e = np.linalg.norm(self.whitened(), axis=1)
@@ -72,9 +77,8 @@ class LinearBlocks:
 
 def to_jacobian_factors(blocks: LinearBlocks, graph: gtsam.GaussianFactorGraph) -> None:
     """Append one whitened (and Huber-reweighted) ``JacobianFactor`` per factor to ``graph``."""
-    sw = np.sqrt(blocks.weights())
-    A = [blocks._w(J) * sw[:, None, None] for J in blocks.jacobians]
-    b = -blocks.whitened() * sw[:, None]
+    A = blocks.weighted_jacobians()
+    b = -blocks.whitened() * np.sqrt(blocks.weights())[:, None]
     if blocks.group is not None:
         _stacked_jacobian_factors(blocks.keys, A, b, blocks.group, graph)
         return

@@ -242,7 +242,7 @@ def _hat_products(graph_groups: list, blocks: dict[str, fx.LinearBlocks], factor
     blocks (:func:`_graph_groups`); ``factor``: the solve's Bayes tree (fusion/normal_solve.py),
     with which ``H z = A (A^T A)^-1 A^T z`` costs two triangular passes for all draws at once."""
     rng = np.random.default_rng(seed)
-    slots = graph_groups + [(blk.keys, _weighted(blk)[0]) for blk in blocks.values()]  # (keys, J) per slot
+    slots = graph_groups + [(blk.keys, blk.weighted_jacobians()) for blk in blocks.values()]  # (keys, J) per slot
     names = [None] * len(graph_groups) + list(blocks)
     rows = [[factor.rows(k, J.shape[2]) for k, J in zip(keys, Js)] for keys, Js in slots]
     z = [rng.standard_normal(Js[0].shape[:2] + (DRAWS,)) for _, Js in slots]  # (K, m, D) per group
@@ -266,13 +266,6 @@ def _scatter_add(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
     ones = np.ones(flat.size)
     scatter = csr_matrix((ones, (flat, np.arange(flat.size))), shape=(out.shape[0], flat.size))
     out += scatter @ values.reshape(flat.size, -1)
-
-
-def _weighted(blk: fx.LinearBlocks) -> tuple[list[np.ndarray], np.ndarray]:
-    """Whitened, Huber-weighted Jacobian blocks (K, m, d) and right-hand side (K, m), as
-    fusion/factors.py ``to_jacobian_factors`` hands them to GTSAM."""
-    sw = np.sqrt(blk.weights())
-    return [blk._w(J) * sw[:, None, None] for J in blk.jacobians], -blk.whitened() * sw[:, None]
 
 
 def _graph_groups(gfg: gtsam.GaussianFactorGraph, count: int) -> list[tuple[list[np.ndarray], list[np.ndarray]]]:

@@ -61,14 +61,6 @@ class TreeFactor:
     cliques: list[_Clique]
     _sorted: tuple[np.ndarray, np.ndarray] | None = None  # the keys sorted, and their offsets
 
-    def stack(self, vectors: dict[int, np.ndarray], columns: int) -> np.ndarray:
-        """(size, columns) the per-key (d, columns) blocks of ``vectors`` stacked (keys missing: 0)."""
-        out = np.zeros((self.size, columns))
-        for k, v in vectors.items():
-            o = self.offset[int(k)]
-            out[o:o + v.shape[0]] = v
-        return out
-
     def rows(self, keys: np.ndarray, dim: int) -> np.ndarray:
         """(K, dim) row indices of the variables ``keys`` (K,) of dimension ``dim``."""
         if self._sorted is None:
@@ -87,23 +79,19 @@ class TreeFactor:
 def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> TreeFactor:
     """The factor of ``tree``, eliminated in ``ordering``: its cliques in elimination order of
     their first frontal variable (every clique before its parent)."""
-    seen: set[int] = set()  # the frontal keys of the cliques taken
-    offset: dict[int, int] = {}
-    dims: dict[int, int] = {}
+    offset: dict[int, int] = {}  # of the frontal keys of the cliques taken
     conds, frontal = [], []
     size = 0
     for i in range(ordering.size()):
         key = ordering.at(i)
-        if key in seen:
+        if key in offset:
             continue
         cond = tree[key].conditional()
         R = np.array(cond.R())  # a copy: the tree may go
         keys, n_f, start, n = list(cond.keys()), R.shape[0], size, 0
         while size - start < n_f:  # the frontal keys: the first ones, whose dimensions fill R
-            k = keys[n]
-            offset[k], dims[k] = size, key_dim(k)
-            seen.add(k)
-            size, n = size + dims[k], n + 1
+            offset[keys[n]] = size
+            size, n = size + key_dim(keys[n]), n + 1
         conds.append((cond, R))
         frontal.append((start, size, keys[n:]))
     blocks = []
@@ -115,7 +103,7 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
             if not np.all(sigmas > 0.0):
                 raise FusionError("normal solve: a hard constraint (a zero sigma) in the factor graph")
             R, S = R / sigmas[:, None], S / sigmas[:, None]
-        sep = np.array([r for k in parents for r in range(offset[k], offset[k] + dims[k])], np.int64)
+        sep = np.array([r for k in parents for r in range(offset[k], offset[k] + key_dim(k))], np.int64)
         blocks.append((start, stop, sep, R, S))
     R_inv = _inverses([b[3] for b in blocks])
     return TreeFactor(offset, size, [_Clique(a, b, sep, r, S) for (a, b, sep, _, S), r in zip(blocks, R_inv)])
@@ -137,7 +125,7 @@ def _inverses(R: list[np.ndarray]) -> list[np.ndarray]:
 
 def solve_normal(factor: TreeFactor, g: np.ndarray) -> np.ndarray:
     """(N, D) the solutions ``x`` of ``(A^T A) x = g`` for the right-hand sides ``g`` (N, D),
-    stacked as :meth:`TreeFactor.stack` stacks them (module docstring)."""
+    in the rows :attr:`TreeFactor.offset` gives each key (module docstring)."""
     y = np.array(g, dtype=float, copy=True)
     for c in factor.cliques:  # R^T y = g, leaves up
         yf = c.R_inv.T @ y[c.start:c.stop]
