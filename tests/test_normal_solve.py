@@ -60,3 +60,23 @@ def test_its_own_right_hand_side_gives_gtsams_step():
         assert np.abs(x[o:o + ns.key_dim(k)] - delta.at(k)).max() < 1e-10
     assert np.array_equal(factor.rows(np.array([stacked[1], stacked[0]]), 3)[:, 0],
                           [factor.offset[stacked[1]], factor.offset[stacked[0]]])
+
+
+def test_a_child_merged_into_its_parent():
+    """A star of five 3-vectors on a hub eliminated last: GTSAM merges the first leaf into the
+    hub's clique, whose first frontal variable then comes before its children's (seen on the
+    smoother's graphs); both passes must take the cliques parents last."""
+    rng = np.random.default_rng(11)
+    g = gtsam.GaussianFactorGraph()
+    unit = gtsam.noiseModel.Unit.Create(3)
+    for i in range(5):
+        g.add(gtsam.JacobianFactor(E(i), rng.normal(size=(3, 3)), E(5), rng.normal(size=(3, 3)), rng.normal(size=3), unit))
+        g.add(gtsam.JacobianFactor(E(i), rng.normal(size=(3, 3)), rng.normal(size=3), unit))
+    g.add(gtsam.JacobianFactor(E(5), np.eye(3), np.zeros(3), unit))
+    ordering = gtsam.Ordering([E(i) for i in range(6)])
+    factor = ns.tree_factor(g.eliminateMultifrontal(ordering, gtsam.EliminateQR), ordering)
+    assert factor.cliques[-1].stop - factor.cliques[-1].start == 6  # the merged root: E(0) with the hub
+    stacked = sorted(factor.offset, key=factor.offset.get)
+    A, _ = g.jacobian(gtsam.Ordering(stacked))
+    rhs = rng.normal(size=(factor.size, 3))
+    assert np.abs(ns.solve_normal(factor, rhs) - np.linalg.solve(A.T @ A, rhs)).max() < 1e-12

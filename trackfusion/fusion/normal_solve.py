@@ -14,6 +14,11 @@ Why hand-written: GTSAM's Python wrapper solves a Bayes tree only for its own ri
 ``d`` (``optimize``), and the transposed system only on a Bayes net, one vector at a time
 (``backSubstituteTranspose``). Both passes here take a matrix of right-hand sides (N, D) and
 cost one small matrix product per clique and pass, without a new elimination.
+
+Not for marginal covariances: their recursion from the root down (``Sigma_ff = R_f^-1 R_f^-T +
+W Sigma_ss W^T``, ``W = R_f^-1 S``) amplifies rounding by ``W`` at every level; tried on a
+216 s GNSS-only survey's tree, the pose variances were wrong from the 70th second and negative
+by the 108th (GTSAM's shortcut marginals, fusion/partitioned.py, do not blow up).
 """
 
 from __future__ import annotations
@@ -78,9 +83,13 @@ class TreeFactor:
 
 def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> TreeFactor:
     """The factor of ``tree``, eliminated in ``ordering``: its cliques in elimination order of
-    their first frontal variable (every clique before its parent)."""
+    their last frontal variable, every clique before its parent. (Not of their first: GTSAM
+    merges a child into its parent, so a clique's frontal variables need not be consecutive in
+    the ordering, and a clique whose first frontal variable comes before another's may be its
+    parent.)"""
+    position = {ordering.at(i): i for i in range(ordering.size())}
     offset: dict[int, int] = {}  # of the frontal keys of the cliques taken
-    conds, frontal = [], []
+    conds, frontal, last = [], [], []
     size = 0
     for i in range(ordering.size()):
         key = ordering.at(i)
@@ -94,6 +103,9 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
             size, n = size + key_dim(keys[n]), n + 1
         conds.append((cond, R))
         frontal.append((start, size, keys[n:]))
+        last.append(max(position[k] for k in keys[:n]))
+    order = np.argsort(last, kind="stable")
+    conds, frontal = [conds[i] for i in order], [frontal[i] for i in order]
     blocks = []
     for (cond, R), (start, stop, parents) in zip(conds, frontal):
         S = np.array(cond.S())
