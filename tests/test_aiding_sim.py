@@ -174,7 +174,8 @@ T_TRUTH = np.arange(0.0, 2 * T_HALF_S + 1e-9, 0.05)  # 20 Hz
 
 
 def run_ts(spec, seed=0, ideal=False, truth=prism_at):
-    return aiding.simulate_total_stations(T_TRUTH, chainage(T_TRUTH), truth, ORIGIN, spec, rng(seed), ideal)
+    return aiding.simulate_total_stations(T_TRUTH, chainage(T_TRUTH), truth, ORIGIN, spec, rng(seed), ideal,
+                                          setup_rng=rng(seed + 1000))
 
 
 def true_setup(spec, sid, d):
@@ -192,7 +193,7 @@ def test_total_stations_ideal_converts_back_to_the_prism():
     data, drawn = run_ts(spec, ideal=True)
     for sid, obs in data.items():
         d = drawn["stations"][sid]
-        assert d["clock_offset_s"] == 0.0 and d["tilt_arcsec"] == [0.0, 0.0]
+        assert d["clock_offset_s"] == 0.0 and d["tilt_arcsec"] == [0.0, 0.0] and d["position_error_mm"] == [0.0] * 3
         pts = polar_to_n(obs.horizontal_angle_rad, obs.zenith_angle_rad, obs.slope_distance_m,
                          true_setup(spec, sid, d), ORIGIN, spec.refraction_k)
         assert np.abs(pts - prism_at(obs.t_s)).max() < 1e-5  # 0.01 mm
@@ -230,7 +231,30 @@ def test_total_stations_errors_clock_and_noise_statistics():
         err = polar_to_n(obs.horizontal_angle_rad, obs.zenith_angle_rad, obs.slope_distance_m, setup, ORIGIN,
                          spec.refraction_k) - prism_at(t_imu)
         assert 2e-3 < np.sqrt((err**2).sum(1).mean()) < 6e-3
+        # the readings are taken from the true point: seen from the nominal one, the prism is off by
+        # minus the set-up error (the noise's mean over thousands of readings: < 0.1 mm)
+        nominal = next(s.pos_n_m for s in spec.stations if s.id == sid)
+        assert np.subtract(d["pos_n_m"], nominal) == pytest.approx(1e-3 * np.array(d["position_error_mm"]), abs=1e-12)
+        seen = polar_to_n(obs.horizontal_angle_rad, obs.zenith_angle_rad, obs.slope_distance_m,
+                          StationSetup(sid, nominal, setup.orientation_rad, setup.tilt_rad), ORIGIN, spec.refraction_k)
+        assert (seen - prism_at(t_imu)).mean(0) == pytest.approx(-1e-3 * np.array(d["position_error_mm"]), abs=1e-4)
     json.dumps(drawn)
+
+
+def test_set_up_position_errors_are_drawn_with_the_stated_sigma():
+    """Each station's instrument point is off its nominal one by N(0, position_sigma_mm) per axis
+    (the surveyor's stated accuracy, also the pipeline's prior); fixed values win; none when ideal."""
+    stations = [{"id": f"S{k}", "pos_n_m": [float(k), -5.0, 1.5]} for k in range(4000)]
+    spec = ts_spec(stations=stations, handover=[{"station": "S0"}], position_sigma_mm=1.5)
+    err = aiding.draw_position_errors(spec, rng(4), False)
+    assert err.shape == (4000, 3)
+    # 12000 draws: the sample std within 3 % (5 sigma), the mean within 0.07 mm (5 sigma)
+    assert err.std(axis=0) == pytest.approx(1.5, rel=0.03) and np.abs(err.mean(axis=0)).max() < 0.07
+    assert abs(np.corrcoef(err.T)[0, 1]) < 0.05
+    assert not aiding.draw_position_errors(spec, rng(4), True).any()
+    stations[1]["position_error_mm"] = [0.5, -0.25, 2.0]
+    fixed = aiding.draw_position_errors(ts_spec(stations=stations, handover=[{"station": "S0"}]), rng(4), False)
+    assert fixed[1].tolist() == [0.5, -0.25, 2.0] and fixed[0] == pytest.approx(err[0] / 1.5)
 
 
 def test_total_stations_handover_overlap_in_chainage():

@@ -37,7 +37,7 @@ from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (
 from .geometry_inputs import check_geometry_inputs, geometry_for_run
 from .forked import ForkedTasks, can_fork as can_fork_tasks
 from .output_prefetch import OutputPrefetch
-from .registration.stations import StationSetupConfig
+from .registration.stations import SETUP_POSITION_SIGMA_MM, StationSetupConfig
 from .report.outputs import start_table_outputs
 from .rotations import quat_from_R
 from .sensors.imu import IMU_GRADES, ImuSpec
@@ -138,7 +138,7 @@ class TotalStationsConfig(StrictModel):
     refraction_k: float = 0.13
     tilt_sigma_arcsec: float = Field(2.0, gt=0)
     orientation_sigma_arcsec: float = Field(2.0, gt=0)
-    position_sigma_mm: float = Field(1.0, gt=0)
+    position_sigma_mm: float = Field(SETUP_POSITION_SIGMA_MM, gt=0)
     clock_drift_sigma_ppm: float = Field(5.0, gt=0)
 
 

@@ -29,6 +29,12 @@ from .polar import StationSetup, n_to_polar, polar_to_n
 ARCSEC = np.pi / 180.0 / 3600.0
 Vec3 = tuple[float, float, float]
 
+#: a set-up's stated accuracy of the instrument point [mm, 1-sigma per axis of ``n``]: centring
+#: over the mark and the measured instrument height, or a resection from control points of about
+#: that accuracy. The fusion's prior on each station's translation; the simulator draws each
+#: station's true set-up error from it.
+SETUP_POSITION_SIGMA_MM = 1.0
+
 
 class ControlReading(StrictModel):
     """A set-up reading to a control point: ``point`` (a name in ``control_points``), horizontal

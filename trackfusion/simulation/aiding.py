@@ -24,6 +24,7 @@ from scipy.signal import lfilter
 from .. import geodesy
 from ..errors import SimulationError
 from ..registration.polar import DEFAULT_REFRACTION_K, StationSetup, n_to_polar
+from ..registration.stations import SETUP_POSITION_SIGMA_MM
 from ..sensors.types import GaugeData, GnssData, InclinometerData, OdometerData, TotalStationData, finite_array
 from ..strict import StrictModel
 from . import noise
@@ -279,7 +280,8 @@ class StationConfig(StrictModel):
     ``instrument_height_m`` > 0; nominal ``orientation_deg`` (azimuth of the horizontal circle's zero,
     clockwise from north); ``blocked`` intervals (IMU clock) with the line of sight obstructed; and
     optionally fixed true errors (else drawn): ``tilt_arcsec`` (about east, about north),
-    ``orientation_error_arcsec``, ``clock_offset_s``, ``clock_drift_ppm``
+    ``orientation_error_arcsec``, ``position_error_mm`` (the set-up's, along ``n``'s e, n, u:
+    the true point is ``pos_n_m`` plus it), ``clock_offset_s``, ``clock_drift_ppm``
     (t_station = t_imu + offset + drift t_imu); ``mislocks``: intervals in which it reads another
     reflector instead of the prism."""
 
@@ -290,6 +292,7 @@ class StationConfig(StrictModel):
     blocked: list[Interval] = []
     tilt_arcsec: tuple[float, float] | None = None
     orientation_error_arcsec: float | None = None
+    position_error_mm: tuple[float, float, float] | None = None
     clock_offset_s: float | None = None
     clock_drift_ppm: float | None = None
     mislocks: list[MisLock] = []
@@ -311,7 +314,9 @@ class TotalStationSpec(StrictModel):
     ``handover_gap_s``: after a hand-over the new station needs this long to find and lock on the
     prism; ``handover_overlap_s``: the station handed over keeps tracking this long after the
     hand-over (a 360-degree prism; 0 for the seed's one-sided prism, whose overlap is in chainage
-    only). ``min_range_m``/``max_range_m``: distance limits of tracking.
+    only). ``min_range_m``/``max_range_m``: distance limits of tracking. ``position_sigma_mm``: the
+    set-up's stated accuracy of the instrument point (1-sigma per axis, the pipeline's prior); each
+    station's true point is its nominal one plus an error drawn from it.
     """
 
     stations: list[StationConfig] = Field(min_length=1)
@@ -324,6 +329,7 @@ class TotalStationSpec(StrictModel):
     distance_ppm: float = Field(1.5, ge=0)
     max_tilt_arcsec: float = Field(4.0, ge=0)
     orientation_sigma_arcsec: float = Field(2.0, ge=0)
+    position_sigma_mm: float = Field(SETUP_POSITION_SIGMA_MM, ge=0)
     max_clock_offset_s: float = Field(5.0, ge=0)
     clock_drift_sigma_ppm: float = Field(1.0, ge=0)
     min_range_m: float = Field(2.0, ge=0)
@@ -436,16 +442,29 @@ def draw_station_errors(st: StationConfig, spec: TotalStationSpec, rng: np.rando
     return np.asarray(tilt, dtype=float), float(orient), float(offset), float(drift)
 
 
-def true_station_setup(st: StationConfig, tilt_arcsec, orientation_error_arcsec: float) -> StationSetup:
-    """The true :class:`StationSetup` of a station config with its (drawn) tilt and orientation error."""
-    return StationSetup(st.id, tuple(float(x) for x in st.pos_n_m),
+def draw_position_errors(spec: TotalStationSpec, rng: np.random.Generator, ideal: bool) -> np.ndarray:
+    """(S, 3) set-up errors [mm] of the instrument points of ``spec.stations`` along ``n``'s axes:
+    normal with ``position_sigma_mm`` per axis; fixed values of the config win; zero when ideal."""
+    drawn = rng.standard_normal((len(spec.stations), 3)) * spec.position_sigma_mm
+    if ideal:
+        return np.zeros_like(drawn)
+    fixed = [st.position_error_mm for st in spec.stations]
+    return np.array([d if f is None else f for f, d in zip(fixed, drawn)], dtype=float).reshape(-1, 3)
+
+
+def true_station_setup(st: StationConfig, tilt_arcsec, orientation_error_arcsec: float,
+                       position_error_mm=(0.0, 0.0, 0.0)) -> StationSetup:
+    """The true :class:`StationSetup` of a station config with its (drawn) tilt, orientation and
+    position error [mm, ``n``]."""
+    return StationSetup(st.id, tuple(float(x) for x in np.add(st.pos_n_m, 1e-3 * np.asarray(position_error_mm))),
                         float(np.radians(st.orientation_deg) + orientation_error_arcsec * ARCSEC),
                         tuple(float(x) * ARCSEC for x in tilt_arcsec), st.instrument_height_m)
 
 
 def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism_pos_n: PrismTruth,
                             origin: geodesy.Origin, spec: TotalStationSpec, rng: np.random.Generator,
-                            ideal: bool = False) -> tuple[dict[str, TotalStationData], dict]:
+                            ideal: bool = False, *,
+                            setup_rng: np.random.Generator) -> tuple[dict[str, TotalStationData], dict]:
     """Polar observations of the trolley prism by every station of ``spec.stations``.
 
     t_truth_s, chainage_m: (M,) truth epochs [s, IMU clock] and the trolley's chainage [m] there
@@ -454,11 +473,13 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
     that is interpolated by a cubic spline (truth at >= 20 Hz keeps the spline error below
     0.01 mm for trolley motion). Each station samples at ``rate_hz`` on its *own* clock
     (``t_station = t_imu + offset + drift t_imu``) while the prism faces it and it is within range
-    and line of sight. Returns {station id: observations (station clock)} and the drawn errors
-    ``{"stations": {id: {"clock_offset_s", "clock_drift_ppm", "tilt_arcsec", "tilt_magnitude_arcsec",
-    "tilt_lean_azimuth_deg", "orientation_error_arcsec", "orientation_rad", "pos_n_m",
-    "instrument_height_m", "tracking_intervals_s", "observations", "angle_noise_rms_arcsec",
-    "distance_noise_rms_mm"}}, "refraction_k"}``; ``orientation_rad`` is the true orientation.
+    and line of sight. The set-ups' position errors are drawn from ``setup_rng`` (a stream of
+    their own: the other draws of a seed do not depend on them). Returns {station id: observations
+    (station clock)} and the drawn errors ``{"stations": {id: {"clock_offset_s", "clock_drift_ppm",
+    "tilt_arcsec", "tilt_magnitude_arcsec", "tilt_lean_azimuth_deg", "orientation_error_arcsec",
+    "orientation_rad", "position_error_mm", "pos_n_m", "instrument_height_m", "tracking_intervals_s",
+    "observations", "angle_noise_rms_arcsec", "distance_noise_rms_mm"}}, "refraction_k"}``;
+    ``orientation_rad`` and ``pos_n_m`` are the true orientation and point (or mark).
     """
     t_truth = _times(t_truth_s, "total_stations")
     chainage = _series(chainage_m, t_truth.size, "total_stations", "chainage_m")
@@ -466,9 +487,9 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
     facing = facing_intervals(t_truth, chainage, spec.handover)
     data: dict[str, TotalStationData] = {}
     drawn: dict[str, dict] = {}
-    for st in spec.stations:
+    for st, pos_err in zip(spec.stations, draw_position_errors(spec, setup_rng, ideal)):
         tilt, orient_err, offset, drift = draw_station_errors(st, spec, rng, ideal)
-        setup = true_station_setup(st, tilt, orient_err)
+        setup = true_station_setup(st, tilt, orient_err, pos_err)
         tracked = tracking_intervals(facing, st.id, spec, float(t_truth[-1]))
         t_imu, t_station = station_epochs(tracked, spec.rate_hz, offset, drift)
         seen = ~_in_intervals(t_imu, st.blocked)
@@ -488,7 +509,7 @@ def simulate_total_stations(t_truth_s: np.ndarray, chainage_m: np.ndarray, prism
             "tilt_magnitude_arcsec": float(np.hypot(*tilt)),
             "tilt_lean_azimuth_deg": float(np.degrees(np.arctan2(tilt[1], -tilt[0])) % 360.0),
             "orientation_error_arcsec": orient_err, "orientation_rad": float(setup.orientation_rad),
-            "pos_n_m": [float(x) for x in st.pos_n_m], "instrument_height_m": st.instrument_height_m,
+            "position_error_mm": pos_err.tolist(), "pos_n_m": list(setup.pos_n), "instrument_height_m": st.instrument_height_m,
             "tracking_intervals_s": [list(iv) for iv in tracked], "observations": int(t_imu.size),
             "mislock_times_s": t_imu[_in_intervals(t_imu, st.mislocks)].tolist(),
             "angle_noise_rms_arcsec": _rms(np.concatenate([e_hz, e_zen])) / ARCSEC,

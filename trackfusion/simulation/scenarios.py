@@ -35,7 +35,7 @@ from .motion import Hold, MotionProfile, Move, compile_plan
 from .trolley import TrolleyGeometry, TrolleyKinematics
 
 #: Random streams, in a fixed order (append new ones at the end to keep old seeds' draws).
-_STREAMS = ("irregularities", "imu", "odometer", "gnss", "total_stations", "inclinometer", "gauge")
+_STREAMS = ("irregularities", "imu", "odometer", "gnss", "total_stations", "inclinometer", "gauge", "station_setups")
 
 TRUTH_COLUMNS = {
     "t_s": "s", "e_m": "m", "n_m": "m", "u_m": "m", "qw": "1", "qx": "1", "qy": "1", "qz": "1",
@@ -296,7 +296,8 @@ def _simulate_aiding(specs: dict, kin: TrolleyKinematics, track: TrackModel, mot
             return st["pos_n"] + st["R_nb"] @ lever
 
         log.total_stations, drawn["total_stations"] = aiding.simulate_total_stations(
-            t, motion.evaluate(t)[0], prism_at, origin, spec, rngs["total_stations"], ideal)
+            t, motion.evaluate(t)[0], prism_at, origin, spec, rngs["total_stations"], ideal,
+            setup_rng=rngs["station_setups"])
     if "inclinometer" in specs:
         spec, _ = specs["inclinometer"]
         t = _epochs(motion, spec.rate_hz)
