@@ -2,22 +2,25 @@
 
 Usage: python benchmarks/bridge.py [--seeds 1 2 3] [--variants]
 For each seed: simulate the 54-minute, 500 Hz round trip with two robotic total stations
-(drawn clock offsets and drifts, tilts up to 4", orientation errors, 0.5" / 3 mm + 1.5 ppm
-noise), run the pipeline (registration in the factor graph) and compare with the truth:
+(drawn clock offsets and drifts, tilts up to 4", orientation errors, set-up errors of the
+instrument points of 1 mm per axis, 0.5" / 3 mm + 1.5 ppm noise), run the pipeline (registration
+in the factor graph) and compare with the truth:
 
 - each station's clock offset (at IMU time 0) minus the truth [ms], its drift, and ``r_max``;
 - each station's tilt about its north axis (the component seen along the east-west bridge) and
   about its east axis (rotation about the line of sight: not observable on this geometry),
-  and the orientation error, minus the truth [arcsec];
+  and the orientation error, minus the truth [arcsec]; its translation minus the drawn set-up
+  error [mm], with the sigmas of both;
 - the round trip's repeatability after fusion (seed 003 tables 3-4: max |r|, mean, std, ppm);
-- the absolute RMS error against the truth, vertical and lateral;
+- the absolute RMS error against the truth, vertical and lateral; RMS(error / sigma) per ENU axis
+  with its effective independent samples and the 95 % interval for honest sigmas;
 - the overlap residuals TS01-TS02 before registration, after seed 003's method and after the
   factor graph's (tables 1-2 form);
 - the wall time of the whole run (``timings_s.total_s``; the machine may be shared), and its CPU
   seconds with its forked workers' (``cpu_s``) and the load average before and after it.
 With ``--variants`` (first seed only) the survey is also fused with ``registration: seed``
 and ``registration: none`` for a side-by-side of the fused results.
-Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes benchmarks/results/bridge.json.
+Simulations are cached under ``$TMPDIR/trackfusion-bench`` (``--work``: elsewhere). Writes benchmarks/results/bridge.json.
 Targets (total-station registration): clocks within 2 ms, tilt within 0.5", round-trip std <= 0.5 mm and max |r|
 <= 2 mm (elevation and across the track), absolute RMS <= 1.5 mm, total run < 60 s on 2 cores.
 """
@@ -85,7 +88,9 @@ def figures(metrics: dict, truth: dict) -> dict:
             "tilt_north_axis_error_arcsec": est["tilt_arcsec"][1] - tr["tilt_arcsec"][1],
             "tilt_east_axis_error_arcsec": est["tilt_arcsec"][0] - tr["tilt_arcsec"][0],
             "orientation_error_arcsec": est["orientation_error_arcsec"] - tr["orientation_error_arcsec"],
-            "tilt_true_arcsec": tr["tilt_arcsec"]}
+            "tilt_true_arcsec": tr["tilt_arcsec"], "position_error_true_mm": tr.get("position_error_mm"),
+            "translation_error_mm": (np.subtract(est["translation_mm"], tr.get("position_error_mm", 0.0))).tolist(),
+            "translation_sigma_mm": sigma.get("translation_mm")}
     rt = metrics["round_trip"]
     out["round_trip"] = {when: {c: {k: rt[when][c][k] for k in ("max_abs_signed_mm", "mean_mm", "std_mm",
                                                                 "relative_accuracy_ppm")}
@@ -97,6 +102,7 @@ def figures(metrics: dict, truth: dict) -> dict:
                                     for c in ("elevation", "across_track")}
                                 for m in ("before", "seed_003", "factor_graph") if m in pair}
     out["consistency_rms_error_over_sigma"] = metrics.get("consistency_rms_error_over_sigma")
+    out["consistency"] = metrics.get("consistency")
     out["rejected_prism"] = len(metrics["rejected_prism"])
     out["run_s"] = metrics["timings_s"]["total_s"]
     out["timings_s"] = metrics["timings_s"]
@@ -154,11 +160,12 @@ def main() -> None:
     ap.add_argument("--out-root", type=Path, default=None,
                     help="write the runs' outputs under this folder (default: beside the cached simulations)")
     ap.add_argument("--results", type=Path, default=RESULTS, help="JSON result file")
+    ap.add_argument("--work", type=Path, default=None, help="cache the simulations here")
     ap.add_argument("--variants-only", action="store_true",
                     help="run only the variants (first seed) and add them to an existing results file")
     args = ap.parse_args()
-    global OUT_ROOT
-    OUT_ROOT = args.out_root
+    global OUT_ROOT, CACHE
+    OUT_ROOT, CACHE = args.out_root, args.work or CACHE
     if args.variants_only:
         result = json.loads(RESULTS.read_text())
         result["variants"] = run_variants(args.seeds[0])
@@ -185,7 +192,8 @@ def main() -> None:
             print(f"  {sid}: clock {s['clock_error_ms']:+.2f} ms (correlation only {s['clock_error_correlation_only_ms']:+.2f}),"
                   f" r_max {s['r_max']:.3f}, tilt N-axis {s['tilt_north_axis_error_arcsec']:+.2f}\","
                   f" (sigma {(s['tilt_sigma_arcsec'] or [0, 0])[1]:.2f}), E-axis {s['tilt_east_axis_error_arcsec']:+.2f}\" (not observable),"
-                  f" orientation {s['orientation_error_arcsec']:+.2f}\"")
+                  f" orientation {s['orientation_error_arcsec']:+.2f}\", translation - set-up error "
+                  f"{np.round(s['translation_error_mm'], 2)} mm (sigma {np.round(s['translation_sigma_mm'] or [], 2)})")
         for m, tab in f["overlap_TS01_TS02"].items():
             print(f"  overlap {m:>12}: " + "; ".join(
                 f"{c} max {v['max_abs_mm']:.2f} mean {v['mean_mm']:+.2f} std {v['std_mm']:.2f} mm, "
