@@ -217,7 +217,7 @@ def check_inputs(units: dict, images: dict, roll_rad: np.ndarray) -> None:
             raise VisionError(f"vision: no {side} {'unit' if side not in units else 'images'}")
         img = images[side]
         cam = units[side].camera
-        # an array, or frames decoded batch by batch when sliced (vision/image_log.py: PngFrames)
+        # an array, or frames read and decoded batch by batch when sliced (vision/image_log.py: LogFrames)
         if not (getattr(img, "ndim", 0) == 3 and getattr(img, "dtype", None) == np.uint8):
             raise VisionError(f"vision: {side} images: expected an (F, H, W) uint8 array")
         if img.shape[1:] != (cam.height_px, cam.width_px):
