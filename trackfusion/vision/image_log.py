@@ -21,7 +21,7 @@ helper would do the same but is not a dependency).
 from __future__ import annotations
 
 import json
-import io
+import struct
 from collections import OrderedDict
 from functools import lru_cache
 from pathlib import Path
@@ -96,18 +96,22 @@ class ChunkedMessages:
     def __len__(self) -> int:
         return len(self.chunk_offsets)
 
-    def read(self, idx: range) -> list[tuple[int, bytes]]:
-        """``(sequence, payload)`` of the messages ``idx``."""
-        from mcap.records import Message
-        from mcap.data_stream import ReadDataStream
+    def read(self, idx: range) -> list[tuple[int, memoryview]]:
+        """``(sequence, payload)`` of the messages ``idx`` (views of the cached chunks)."""
+        from mcap.opcode import Opcode
         out = []
         with open(self.path, "rb") as fh:
             for i in idx:
                 data = _chunk_data(fh, self.path, int(self.chunk_offsets[i]))
                 at = int(self.record_offsets[i])
-                length = int.from_bytes(data[at + 1:at + 9], "little")
-                msg = Message.read(ReadDataStream(io.BytesIO(data[at + 9:at + 9 + length])), length)
-                out.append((msg.sequence, msg.data))
+                # MCAP Message record: opcode, length (u64); channel (u16), sequence (u32), log
+                # and publish time (u64 each), then the payload (a view: no copy)
+                op, length, _channel, sequence = (struct.unpack_from("<BQHI", data, at) if at + 15 <= len(data)
+                                                  else (None, 0, 0, 0))
+                if op != Opcode.MESSAGE or length < 22 or at + 9 + length > len(data):
+                    raise SensorDataError(f"{self.path}: the message index of the chunk at byte {self.chunk_offsets[i]} "
+                                          f"points at no message record (offset {at})")
+                out.append((sequence, data[at + 9 + 22:at + 9 + length]))
         return out
 
 
@@ -139,7 +143,7 @@ def png_pixels(payload: bytes, where: str) -> np.ndarray:
     with ``where`` otherwise."""
     from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
     try:
-        msg = CompressedImage.FromString(payload)
+        msg = CompressedImage.FromString(bytes(payload))
     except Exception:  # noqa: BLE001 (protobuf's DecodeError)
         raise SensorDataError(f"{where}: not a foxglove.CompressedImage") from None
     if msg.format != "png":
