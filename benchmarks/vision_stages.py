@@ -15,8 +15,11 @@ them: stripe centres (``stripe_centres``), points (undistortion and the laser pl
 them. CPU seconds (``time.process_time``: a shared machine distorts wall clocks, less so CPU),
 the least of ``--repeats`` passes (trees alternating), per frame of both cameras. A tree that
 cannot read a log (an older one, the raw images) is listed as such. The measurements of every
-tree are compared bit for bit. Writes benchmarks/results/vision_stages.json with the load
-average.
+tree are compared bit for bit. Beside (this tree, the PNG log's first 128 frames of the left
+camera): CPU ms per image of ``cv2.imdecode`` with ``IMREAD_UNCHANGED`` and with
+``IMREAD_GRAYSCALE``, of decompressing the raw pixels in 1 MB chunks compressed as the MCAP
+writer does (zstd, lz4), and ``measure_frames`` per frame with OpenCV's threads on (its default)
+and off. Writes benchmarks/results/vision_stages.json with the load average.
 """
 
 from __future__ import annotations
@@ -102,6 +105,56 @@ def simulate(work: Path, length_m: float) -> dict[str, Path]:
     return out
 
 
+def least_cpu_ms(fn, n: int, repeats: int) -> float:
+    """The least CPU time [ms] of ``repeats`` calls of ``fn``, per item of ``n``."""
+    import time
+    best = float("inf")
+    for _ in range(repeats):
+        c = time.process_time()
+        fn()
+        best = min(best, time.process_time() - c)
+    return best / n * 1e3
+
+
+def codec_figures(png_folder: Path, repeats: int) -> dict:
+    """CPU ms per image of PNG decoding (two flags) and of chunk decompression (zstd, lz4), and
+    per frame of ``measure_frames`` with OpenCV's threads on and off (module docstring)."""
+    import cv2
+    import lz4.frame
+    import numpy as np
+    import zstandard
+    from trackfusion.track.rail_profile import rail_head
+    from trackfusion.vision.calibration import load_calibration
+    from trackfusion.vision.image_log import read_vision_log
+    from trackfusion.vision.measure import measure_frames
+    log = read_vision_log(png_folder / "log.mcap")
+    imgs = log["images"]["left"][0:128]
+    pngs = [cv2.imencode(".png", im)[1] for im in imgs]
+    out = {}
+    for flag in ("IMREAD_UNCHANGED", "IMREAD_GRAYSCALE"):
+        out[f"png_decode_{flag}_ms_per_image"] = least_cpu_ms(
+            lambda f=getattr(cv2, flag): [cv2.imdecode(p, f) for p in pngs], len(pngs), repeats)
+    chunks = [imgs[i:i + 4].tobytes() for i in range(0, len(imgs), 4)]            # 1 MB, as MCAP's
+    for name, comp, dec in (("zstd", zstandard.compress, zstandard.decompress),
+                            ("lz4", lz4.frame.compress, lz4.frame.decompress)):
+        packed = [comp(c) for c in chunks]
+        out[f"{name}_ratio"] = sum(map(len, packed)) / sum(map(len, chunks))
+        out[f"{name}_decompress_ms_per_image"] = least_cpu_ms(lambda p=packed, d=dec: [d(x) for x in p],
+                                                              len(imgs), repeats)
+    units, head = load_calibration(png_folder / "calibration.yaml"), rail_head("60E1")
+    batches = [{k: v[a:a + 64] for k, v in log["images"].items()} for a in range(0, 128, 64)]
+    roll = np.zeros(64)
+    default = cv2.getNumThreads()
+    for label, threads in (("default", default), ("one", 1)) * repeats:
+        cv2.setNumThreads(threads)
+        ms = least_cpu_ms(lambda: [measure_frames(units, head, b, roll) for b in batches], 128, 1)
+        key = f"measure_frames_opencv_threads_{label}_ms_per_frame"
+        out[key] = min(ms, out.get(key, ms))
+    cv2.setNumThreads(default)
+    out["opencv_default_threads"] = default
+    return out
+
+
 def tree_label(arg: str) -> tuple[str, str]:
     """``(label, dir)`` of a ``--src`` argument ``LABEL=DIR`` or ``DIR`` (labelled by its name)."""
     label, sep, folder = arg.partition("=")
@@ -143,8 +196,9 @@ def main() -> None:
                     best[key] = {"frames": r["frames"], "ms_per_frame": {
                         k: min(v, old.get(k, v)) for k, v in r["ms_per_frame"].items()}}
                     print(key, json.dumps({k: round(v, 3) for k, v in best[key]["ms_per_frame"].items()}), flush=True)
+        codecs = codec_figures(logs["png"], max(args.repeats, 3))
     first = next(iter(outputs.values()))
-    doc = {"trees": best, "same_measurements_all_trees_and_logs": all(same_measurements(first, o) for o in outputs.values()),
+    doc = {"trees": best, "codecs": codecs, "same_measurements_all_trees_and_logs": all(same_measurements(first, o) for o in outputs.values()),
            "length_m": args.length_m, "repeats": args.repeats, "load_average": os.getloadavg(), "cpus": os.cpu_count()}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=2))

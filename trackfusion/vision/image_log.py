@@ -129,7 +129,10 @@ def _chunk_data(fh, path: Path, offset: int) -> memoryview:
         _CHUNKS.move_to_end(key)
         return _CHUNKS[key]
     fh.seek(offset + 1 + 8)                               # opcode, record length
-    stream, n = get_chunk_data_stream(Chunk.read(ReadDataStream(fh)))
+    try:
+        stream, n = get_chunk_data_stream(Chunk.read(ReadDataStream(fh)))
+    except Exception as exc:  # noqa: BLE001 (a truncated record, a corrupt zstd or lz4 frame)
+        raise SensorDataError(f"{path}: the chunk at byte {offset} does not read ({type(exc).__name__})") from None
     data = memoryview(stream.read(n))
     _CHUNKS[key] = data
     while sum(len(v) for v in _CHUNKS.values()) > _CHUNK_CACHE_BYTES and len(_CHUNKS) > 1:
@@ -236,8 +239,8 @@ def write_vision_log(path: str | Path, t_imu_s: np.ndarray, gyro_b: np.ndarray, 
     encoder distance (N,) [m] in ticks of ``tick_m``, and per side the images (F, H, W) uint8 at
     ``t_frame_s`` (F,) [s] as ``image_encoding`` (``"png"``: ``foxglove.CompressedImage``,
     ``"raw"``: ``sensor_msgs/msg/Image``); zstd chunks for PNG images, lz4 chunks for raw ones
-    (noisy pixels: zstd takes about 0.6 ms of CPU an image to decompress, lz4 0.1 ms, for 40 %
-    and 74 % of the size), messages in time order per channel, ``metadata`` as one record
+    (noisy pixels: zstd takes about 0.6 ms of CPU an image to decompress, lz4 0.12 ms, for 45 %
+    and 74 % of the size; ``benchmarks/vision_stages.py``), messages in time order per channel, ``metadata`` as one record
     ``trackfusion`` (``{"json": text}``)."""
     from mcap.writer import CompressionType, Writer
     from ..sensors.cdr import msgdef

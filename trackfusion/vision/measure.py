@@ -314,8 +314,8 @@ def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray,
 def one_opencv_thread():
     """OpenCV's own thread pool off while inside (``cv2.setNumThreads(1)``; the forked workers
     inherit it): its calls here are per image and small (threshold, reduce, dilate), so waking
-    threads costs more CPU than it saves (about 10 % of the run's CPU, measured); the frames
-    are split over processes instead. The same results."""
+    threads costs CPU rather than saving it (a few per cent, ``benchmarks/vision_stages.py``);
+    the frames are split over processes instead. The same results."""
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
