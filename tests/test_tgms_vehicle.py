@@ -185,3 +185,31 @@ def test_a_bad_image_message_is_exit_2_naming_topic_and_record(survey, tmp_path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/camera/left/image: message 1: a 640x399 px uint8 image" in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("encoding", ["png", "raw"])
+def test_logs_with_and_without_message_indexes_read_the_same(tmp_path, monkeypatch, encoding):
+    import mcap.writer
+    from trackfusion.vision.image_log import read_vision_log, write_vision_log
+    rng = np.random.default_rng(0)
+    t = np.arange(10) * 0.004
+    images = {side: rng.integers(0, 256, (4, 8, 10), dtype=np.uint8) for side in ("left", "right")}
+
+    def write(path):
+        write_vision_log(path, t, np.zeros((10, 3)), np.tile([0, 0, 9.81], (10, 1)), t * 30.0, 1e-3, t[2:6],
+                         images, image_encoding=encoding)
+
+    write(tmp_path / "indexed.mcap")
+
+    class ChunkIndexOnly(mcap.writer.Writer):   # a writer that leaves out the message indexes
+        def __init__(self, output, **kw):
+            super().__init__(output, **{**kw, "index_types": mcap.writer.IndexType.CHUNK})
+
+    monkeypatch.setattr(mcap.writer, "Writer", ChunkIndexOnly)
+    write(tmp_path / "plain.mcap")
+    for name in ("indexed.mcap", "plain.mcap"):
+        log = read_vision_log(tmp_path / name)
+        np.testing.assert_array_equal(log["t_frame_s"], t[2:6])
+        for side, stack in images.items():
+            np.testing.assert_array_equal(log["images"][side][0:4], stack)
+            np.testing.assert_array_equal(log["images"][side][2], stack[2])
