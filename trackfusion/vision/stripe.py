@@ -1,6 +1,7 @@
 """Laser-stripe centre per image column, to sub-pixel, vectorised over columns and frames.
 
-Per column: the brightest row (the first one, as ``cv2.reduceArgMax``; :func:`peak_rows`), then the centre of gravity of the intensity above a threshold
+Per column: the brightest row (the first one, as ``cv2.reduceArgMax`` finds it; :func:`peak_rows`),
+then the centre of gravity of the intensity above a threshold
 (the background plus ``threshold_fraction`` of the peak's height above it) in a window around
 it. Thresholding gives the weights compact support, so the centre of a symmetric stripe profile
 is unbiased whatever the window's position relative to it. A column has no stripe when its peak
