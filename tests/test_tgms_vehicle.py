@@ -119,13 +119,97 @@ def test_scenario_listed_and_bad_set_refused(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-def test_frames_that_are_not_grey_png_are_refused_before_decoding():
+def test_frames_that_are_not_grey_png_are_refused():
     from trackfusion.errors import SensorDataError
-    from trackfusion.vision.image_log import frames_of
-    grey = cv2.imencode(".png", np.zeros((4, 6), np.uint8))[1].tobytes()
-    colour = cv2.imencode(".png", np.zeros((4, 6, 3), np.uint8))[1].tobytes()
-    frames = frames_of([grey, grey], "log.mcap: /camera/left/image")
+    from trackfusion.vision.image_log import LogFrames, encode_png_message, png_pixels
+    where = "log.mcap: /camera/left/image"
+    grey = encode_png_message(np.zeros((4, 6), np.uint8), 0, "camera_left")
+    colour = encode_png_message(np.zeros((4, 6, 3), np.uint8), 0, "camera_left")
+    frames = LogFrames([(0, grey), (1, grey)], 4, 6, where, png_pixels)
     assert frames.shape == (2, 4, 6) and frames[0:2].shape == (2, 4, 6)
-    for bad in ([grey, b"not a png"], [grey, colour]):
-        with pytest.raises(SensorDataError, match="/camera/left/image"):
-            frames_of(bad, "log.mcap: /camera/left/image")
+    for bad, why in ((b"not a message", "message 1"), (colour, "message 1: not an 8-bit grey PNG")):
+        with pytest.raises(SensorDataError, match=f"/camera/left/image: {why}"):
+            LogFrames([(0, grey), (1, bad)], 4, 6, where, png_pixels)[0:2]
+
+
+def test_raw_image_messages_round_trip_and_bad_ones_are_named():
+    from trackfusion.errors import SensorDataError
+    from trackfusion.vision.image_log import decode_raw_message, encode_raw_message
+    img = np.arange(24, dtype=np.uint8).reshape(4, 6)
+    data = encode_raw_message(img, 1_500_000_001, "camera_left")
+    assert np.array_equal(decode_raw_message(data, "x"), img)
+    where = "log.mcap: /camera/left/image: message 7"
+    for bad in (data[:40], data[:-1], encode_raw_message(img, 0, "camera_left").replace(b"mono8", b"mono9")):
+        with pytest.raises(SensorDataError, match="/camera/left/image: message 7: "):
+            decode_raw_message(bad, where)
+
+
+@pytest.fixture(scope="module")
+def raw_survey(survey, tmp_path_factory):
+    """The same survey with its images as ``sensor_msgs/msg/Image`` (the calibration sets are
+    the same: the calibration file is reused), run with one forked process and with two."""
+    d = tmp_path_factory.mktemp("tgms_raw")
+    argv = ["-q", "simulate", "tgms-vehicle", "--out", str(d / "sim"), "--seed", "3", "--set", "image_encoding=raw"]
+    assert main(argv + sum((["--set", s] for s in SETS), [])) == 0
+    (d / "sim" / "calibration.yaml").write_bytes((survey["sim"] / "calibration.yaml").read_bytes())
+    assert main(["-q", "run", str(d / "sim" / "pipeline.yaml"), "--out", str(d / "out")]) == 0
+    one = (d / "sim" / "pipeline.yaml").read_text().replace("workers: 2", "workers: 1")
+    (d / "sim" / "one.yaml").write_text(one)
+    assert main(["-q", "run", str(d / "sim" / "one.yaml"), "--out", str(d / "out1")]) == 0
+    return d
+
+
+def test_raw_image_log_gives_the_png_log_s_geometry(survey, raw_survey):
+    from mcap.reader import make_reader
+    with open(raw_survey / "sim" / "log.mcap", "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    names = {summary.schemas[c.schema_id].name for c in summary.channels.values() if c.topic.startswith("/camera")}
+    assert names == {"sensor_msgs/msg/Image"}
+    png = (survey["out"] / "geometry.csv").read_bytes()
+    assert (raw_survey / "out" / "geometry.csv").read_bytes() == png
+    assert (raw_survey / "out1" / "geometry.csv").read_bytes() == png
+
+
+def test_a_bad_image_message_is_exit_2_naming_topic_and_record(survey, tmp_path, capsys):
+    from trackfusion.vision.image_log import read_vision_log, write_vision_log
+    log = read_vision_log(survey["sim"] / "log.mcap")
+    good = log["images"]["left"][0]
+    write_vision_log(tmp_path / "bad.mcap", log["t_imu_s"], log["gyro_b"], log["accel_b"], log["encoder_m"], 1e-3,
+                     log["t_frame_s"][:3], {"left": [good, good[:-1], good], "right": [good] * 3},
+                     image_encoding="raw")
+    text = (survey["sim"] / "pipeline.yaml").read_text().replace("log.mcap", str(tmp_path / "bad.mcap"))
+    for name in ("calibration.yaml", "design.csv"):
+        text = text.replace(name, str(survey["sim"] / name))
+    (tmp_path / "p.yaml").write_text(text)
+    assert main(["-q", "run", str(tmp_path / "p.yaml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "/camera/left/image: message 1: a 640x399 px uint8 image" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("encoding", ["png", "raw"])
+def test_logs_with_and_without_message_indexes_read_the_same(tmp_path, monkeypatch, encoding):
+    import mcap.writer
+    from trackfusion.vision.image_log import read_vision_log, write_vision_log
+    rng = np.random.default_rng(0)
+    t = np.arange(10) * 0.004
+    images = {side: rng.integers(0, 256, (4, 8, 10), dtype=np.uint8) for side in ("left", "right")}
+
+    def write(path):
+        write_vision_log(path, t, np.zeros((10, 3)), np.tile([0, 0, 9.81], (10, 1)), t * 30.0, 1e-3, t[2:6],
+                         images, image_encoding=encoding)
+
+    write(tmp_path / "indexed.mcap")
+
+    class ChunkIndexOnly(mcap.writer.Writer):   # a writer that leaves out the message indexes
+        def __init__(self, output, **kw):
+            super().__init__(output, **{**kw, "index_types": mcap.writer.IndexType.CHUNK})
+
+    monkeypatch.setattr(mcap.writer, "Writer", ChunkIndexOnly)
+    write(tmp_path / "plain.mcap")
+    for name in ("indexed.mcap", "plain.mcap"):
+        log = read_vision_log(tmp_path / name)
+        np.testing.assert_array_equal(log["t_frame_s"], t[2:6])
+        for side, stack in images.items():
+            np.testing.assert_array_equal(log["images"][side][0:4], stack)
+            np.testing.assert_array_equal(log["images"][side][2], stack[2])

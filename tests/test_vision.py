@@ -3,6 +3,7 @@ gauge / cross-level / wear and faults (seed 001 sections 4-6 and 10)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -253,10 +254,12 @@ def test_forked_batches_give_the_same_figures():
     from trackfusion.vision.measure import measure_run
     sims, run, imgs, _ = _frames(8, noise=True)
     units = {k: s.unit for k, s in sims.items()}
+    threads = cv2.getNumThreads()
     one = measure_run(units, HEAD, imgs, run.roll_rel_rad, batch=4, workers=1)
     two = measure_run(units, HEAD, imgs, run.roll_rel_rad, batch=4, workers=2)
     np.testing.assert_array_equal(one.gauge_m, two.gauge_m)
     assert one.faults == two.faults
+    assert cv2.getNumThreads() == threads  # OpenCV's threads off only while measuring
 
 
 def test_glare_columns_give_no_centres():

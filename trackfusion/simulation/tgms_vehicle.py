@@ -34,7 +34,8 @@ DESCRIPTION = ("in-service vehicle, seed 001's camera-laser rail profiles + IMU 
 class TgmsScenario:
     """The scenario's parameters (``--set NAME=VALUE``): filmed length [m], speed [m/s], IMU
     lead-in and tail [s], frame rate [Hz], arc radius [m] and cant [mm], wear [mm], board poses
-    per calibration set, rail profile."""
+    per calibration set, rail profile, and how the log holds the images (``png``:
+    ``foxglove.CompressedImage``; ``raw``: ``sensor_msgs/msg/Image``, nothing to decode)."""
 
     length_m: float = 200.0
     speed_mps: float = 30.0
@@ -47,6 +48,7 @@ class TgmsScenario:
     side_wear_mm: float = 2.0
     calibration_poses: int = 30
     rail_profile: str = "60E1"
+    image_encoding: str = "png"
 
 
 def scenario_from_overrides(overrides: list[str]) -> TgmsScenario:
@@ -67,6 +69,9 @@ def scenario_from_overrides(overrides: list[str]) -> TgmsScenario:
         raise ConfigError(f"--set speed_mps={sc.speed_mps:g}: an in-service vehicle here runs at 20-40 m/s")
     if sc.length_m < 20.0 or sc.lead_s < 5.0 or sc.tail_s < 2.0 or sc.calibration_poses < 8 or sc.rate_hz <= 0:
         raise ConfigError("--set: needs length_m >= 20, lead_s >= 5, tail_s >= 2, calibration_poses >= 8")
+    from ..vision.image_log import IMAGE_ENCODINGS
+    if sc.image_encoding not in IMAGE_ENCODINGS:
+        raise ConfigError(f"--set image_encoding={sc.image_encoding}: one of {', '.join(IMAGE_ENCODINGS)}")
     return sc
 
 
@@ -145,7 +150,8 @@ def write_tgms(sim: dict, sc: TgmsScenario, seed: int, out: Path) -> list[str]:
     from .vision_calibration import write_calibration_set
     run, f = sim["run"], sim["filmed"]
     write_vision_log(out / "log.mcap", run.t_s, sim["gyro"], sim["accel"], sim["encoder_m"], 1e-3, run.t_s[f],
-                     sim["images"], metadata={"scenario": NAME, "seed": seed, "simulated": True})
+                     sim["images"], metadata={"scenario": NAME, "seed": seed, "simulated": True},
+                     image_encoding=sc.image_encoding)
     for i, side in enumerate(("left", "right")):
         write_calibration_set(sim["sims"][side], out / "calibration" / side, n_poses=sc.calibration_poses,
                               seed=100 * seed + i + 1)

@@ -26,6 +26,7 @@ wear listed as a fault (``glare_near_stripe``) and NaN; its gauge and cross-leve
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -217,7 +218,7 @@ def check_inputs(units: dict, images: dict, roll_rad: np.ndarray) -> None:
             raise VisionError(f"vision: no {side} {'unit' if side not in units else 'images'}")
         img = images[side]
         cam = units[side].camera
-        # an array, or frames decoded batch by batch when sliced (vision/image_log.py: PngFrames)
+        # an array, or frames read and decoded batch by batch when sliced (vision/image_log.py: LogFrames)
         if not (getattr(img, "ndim", 0) == 3 and getattr(img, "dtype", None) == np.uint8):
             raise VisionError(f"vision: {side} images: expected an (F, H, W) uint8 array")
         if img.shape[1:] != (cam.height_px, cam.width_px):
@@ -301,11 +302,32 @@ def concatenate(parts: list[FrameMeasurements]) -> FrameMeasurements:
 def measure_run(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, *, batch: int = 64,
                 workers: int = 1, **kwargs) -> FrameMeasurements:
     """:func:`measure_frames` over a whole run in batches of ``batch`` frames (bounded memory),
-    split over ``workers`` forked processes (:class:`trackfusion.forked.ForkedTasks`: the images
-    are read from the parent's memory, only the figures travel back) when that is possible."""
-    from ..forked import ForkedTasks, can_fork
-
+    split over ``workers`` forked processes (:class:`trackfusion.forked.ForkedTasks`: each reads
+    its frames, from the log (:class:`~trackfusion.vision.image_log.LogFrames`) or the parent's
+    arrays; only the figures travel back) when that is possible, with OpenCV on one thread."""
     check_inputs(units, images, roll_rad)
+    with one_opencv_thread():
+        return _measure_parts(units, head, images, roll_rad, batch, workers, kwargs)
+
+
+@contextmanager
+def one_opencv_thread():
+    """OpenCV's own thread pool off while inside (``cv2.setNumThreads(1)``; the forked workers
+    inherit it): its calls here are per image and small (threshold, reduce, dilate), so waking
+    threads costs CPU rather than saving it (a few per cent, ``benchmarks/vision_stages.py``);
+    the frames are split over processes instead. The same results."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+def _measure_parts(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, batch: int, workers: int,
+                   kwargs: dict) -> FrameMeasurements:
+    """:func:`measure_run`'s batches, in this process or on forked ones."""
+    from ..forked import ForkedTasks, can_fork
     F = len(roll_rad)
 
     def part(lo: int, hi: int) -> FrameMeasurements:

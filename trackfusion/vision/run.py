@@ -13,6 +13,7 @@ listed in ``metrics.json``; nothing a simulator knows is read.
 
 from __future__ import annotations
 
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -188,6 +189,13 @@ def vision_metrics(cfg: VisionPipelineConfig, log: dict, mo: dict, m, table: dic
         "timings_s": timings}
 
 
+def cpu_s() -> float:
+    """CPU seconds [s] of this process and of its children that have ended (the forked workers,
+    reaped by then): user and system time."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def process(inputs: dict, cfg: VisionPipelineConfig, say: Callable[[str], None]) -> tuple[dict, dict, Any, dict]:
     """The run's computing: table, metrics, the measurements and the motion."""
     from ..track.rail_profile import rail_head
@@ -201,13 +209,13 @@ def process(inputs: dict, cfg: VisionPipelineConfig, say: Callable[[str], None])
     timings["motion_s"] = time.perf_counter() - tic
     F = len(log["t_frame_s"])
     say(f"[{cfg.name}] measuring {F} frames of both cameras")
-    tic, cpu = time.perf_counter(), time.process_time()
+    tic, cpu = time.perf_counter(), cpu_s()
     m = measure_run(inputs["units"], head, log["images"], mo["frame_roll_rad"], gauge_nominal_m=v.gauge_nominal_m,
                     workers=v.workers)
     timings["frames_s"] = time.perf_counter() - tic
+    timings["frames_cpu_s"] = cpu_s() - cpu
     timings["frames_per_s"] = F / max(timings["frames_s"], 1e-9)
-    if v.workers == 1:
-        timings["frames_per_cpu_s"] = F / max(time.process_time() - cpu, 1e-9)
+    timings["frames_per_cpu_s"] = F / max(timings["frames_cpu_s"], 1e-9)
     table = geometry_table(log, mo, m, d1_traces(m, mo))
     return table, vision_metrics(cfg, log, mo, m, table, timings), m, mo
 
@@ -233,12 +241,13 @@ def run_vision(p: VisionPipeline, out_dir: str | Path | None = None,
     say = progress or (lambda _m: None)
     out = Path(out_dir) if out_dir is not None else p.base_dir / "out"
     folder = OutputFolder(out, force, inputs=p.inputs(), command="trackfusion run", writes=RUN_FILES)
-    wall = time.perf_counter()
+    wall, cpu = time.perf_counter(), cpu_s()
     with folder.locked():
         say(f"[{p.config.name}] reading {p.path(p.config.vision.log)}")
         inputs = read_inputs(p)
+        read_s = time.perf_counter() - wall
         table, metrics, m, _mo = process(inputs, p.config, say)
-        metrics["timings_s"]["total_s"] = time.perf_counter() - wall
+        metrics["timings_s"].update(read_s=read_s, total_s=time.perf_counter() - wall, total_cpu_s=cpu_s() - cpu)
         with folder.staging() as stage:
             write_csv_table(stage / "geometry.csv", table, GEOMETRY_UNITS, "track (design chainage)", {},
                             extra={"description": "vision-inertial track geometry per camera frame; "
