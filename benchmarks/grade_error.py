@@ -19,7 +19,8 @@ Per seed:
   of the vertical fixes on (1, chainage) with the simulated receiver's error covariance (white
   ``sigma_v`` + Gauss-Markov ``gm_sigma_v (+) ppm baseline`` with ``gm_tau_s``), i.e. how well the
   fixes alone tell the grade (the bias then tells nothing more: a level IMU that never turns
-  cannot separate its along-track bias from pitch).
+  cannot separate its along-track bias from pitch), and the grade the drawn errors of the fixes imply
+  (the same least squares applied to them).
 Writes benchmarks/results/grade_error.json (or ``--out``).
 """
 
@@ -71,22 +72,27 @@ def effective_along_bias_ug(truth: dict) -> float:
     return float((a["bias"][0] + gm + at_rest) / (G0_MPS2 * 1e-6))
 
 
-def gnss_grade_bound_urad(folder: Path, truth: dict) -> float:
-    """Cramer-Rao bound [urad] of a constant grade from the vertical fixes alone (module docstring)."""
+def gnss_grade(folder: Path, truth: dict) -> tuple[float, float]:
+    """``(bound, implied)`` [urad]: the Cramer-Rao bound of a constant grade from the vertical fixes
+    alone, and the grade their drawn errors imply (the same generalised least squares applied to
+    ``errors.gnss.error_n_m``'s up column: what the fixes tilt a trajectory by). Fix epochs
+    ``k / rate_hz`` from 0, as the simulator writes them (no outages in the scenario)."""
     from trackfusion.sensors.fileio import read_csv_table
     from trackfusion.simulation.aiding import GnssSpec
     spec = GnssSpec(**{k: v for k, v in truth["config"]["gnss"].items() if k != "lever_arm_b_m"})
+    error_u_m = np.asarray(truth["errors"]["gnss"]["error_n_m"])[:, 2]
     tab = read_csv_table(folder / "truth.csv")
-    t = np.arange(tab["t_s"][0], tab["t_s"][-1], 1.0 / spec.rate_hz)
+    t = np.arange(error_u_m.size) / spec.rate_hz
     s = np.interp(t, tab["t_s"], tab["chainage_m"])
     gm = np.hypot(spec.gm_sigma_v_mm, spec.ppm * spec.baseline_km) * 1e-3
     C = gm**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / spec.gm_tau_s) + (spec.sigma_v_mm * 1e-3) ** 2 * np.eye(t.size)
     X = np.column_stack([np.ones_like(s), s])
-    info = X.T @ np.linalg.solve(C, X)
-    return float(np.sqrt(np.linalg.inv(info)[1, 1]) * 1e6)
+    cov = np.linalg.inv(X.T @ np.linalg.solve(C, X))
+    implied = cov @ X.T @ np.linalg.solve(C, error_u_m)
+    return float(np.sqrt(cov[1, 1]) * 1e6), float(implied[1] * 1e6)
 
 
-def seed_figures(seed: int, label: str, bound: bool) -> dict:
+def seed_figures(seed: int, label: str) -> dict:
     folder = CACHE / f"open-track-gnss-{seed}"
     truth = json.loads((folder / "truth.json").read_text())
     metrics = json.loads((folder / label / "metrics.json").read_text())
@@ -101,8 +107,7 @@ def seed_figures(seed: int, label: str, bound: bool) -> dict:
            "vertical_adev_5m_mm": adev_mm(u, ds.step_m), "vertical_adev_5m_without_grade_mm": adev_mm(detrended, ds.step_m),
            "along_bias_effective_ug": true_bias, "along_bias_estimated_ug": est_bias,
            "along_bias_error_ug": est_bias - true_bias}
-    if bound:
-        row["gnss_grade_bound_urad"] = gnss_grade_bound_urad(folder, truth)
+    row["gnss_grade_bound_urad"], row["gnss_implied_grade_urad"] = gnss_grade(folder, truth)
     return row
 
 
@@ -113,21 +118,26 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--made-by", default="this checkout", help="the code that made the runs (for the JSON)")
     args = ap.parse_args()
-    rows = [seed_figures(s, args.label, bound=(i == 0)) for i, s in enumerate(args.seeds)]
+    rows = [seed_figures(s, args.label) for s in args.seeds]
     for r in rows:
         print(f"seed {r['seed']:3d}: grade error {r['grade_error_urad']:+6.1f} urad; 5 m vertical ADEV "
               f"{r['vertical_adev_5m_mm']:.3f} mm, without the grade {r['vertical_adev_5m_without_grade_mm']:.3f} mm; "
-              f"along-track bias drawn {r['along_bias_effective_ug']:+6.1f} ug, estimated {r['along_bias_estimated_ug']:+6.1f} ug")
+              f"along-track bias drawn {r['along_bias_effective_ug']:+6.1f} ug, estimated {r['along_bias_estimated_ug']:+6.1f} ug; "
+              f"the fixes' errors imply {r['gnss_implied_grade_urad']:+6.1f} urad")
     rms = {k: float(np.sqrt(np.mean([r[k] ** 2 for r in rows])))
            for k in ("grade_error_urad", "vertical_adev_5m_mm", "vertical_adev_5m_without_grade_mm",
                      "along_bias_effective_ug", "along_bias_error_ug")}
-    corr = float(np.corrcoef([r["grade_error_urad"] for r in rows], [r["along_bias_error_ug"] for r in rows])[0, 1])
+    grades = [r["grade_error_urad"] for r in rows]
+    corr = float(np.corrcoef(grades, [r["along_bias_error_ug"] for r in rows])[0, 1])
+    corr_gnss = float(np.corrcoef(grades, [r["gnss_implied_grade_urad"] for r in rows])[0, 1])
     print(f"RMS over the seeds: {rms}; correlation of grade error and bias error {corr:.3f}; "
+          f"with the grade the fixes' errors imply {corr_gnss:.3f}; "
           f"GNSS-only bound of the grade (seed {rows[0]['seed']}): {rows[0]['gnss_grade_bound_urad']:.1f} urad")
     result = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                        cwd=Path(__file__).parent).stdout.strip(),
               "date": time.strftime("%Y-%m-%d"), "label": args.label, "runs_made_by": args.made_by, "seeds": args.seeds, "runs": rows,
-              "rms": rms, "correlation_grade_bias_error": corr}
+              "rms": rms, "correlation_grade_bias_error": corr,
+              "correlation_grade_gnss_implied": corr_gnss}
     args.out.parent.mkdir(exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {args.out}")
