@@ -20,12 +20,13 @@ def errors_against_truth(d, tab):
             np.interp(tab["t_s"], truth["t_s"], truth["chainage_m"]))
 
 
-def short_open_track_problem(d, seed):
+def short_open_track_problem(d, seed, ideal=False):
     """The fusion problem of a short ``open-track-gnss`` survey (:data:`SHORT_OPEN_TRACK`)
-    simulated with ``seed`` into folder ``d``, as ``trackfusion run`` builds it."""
+    simulated with ``seed`` into folder ``d`` (``ideal``: without sensor errors), as ``trackfusion
+    run`` builds it."""
     from trackfusion import pipeline as P
     from trackfusion.simulation.scenarios import simulate_to_dir
-    simulate_to_dir("open-track-gnss", d, seed=seed, overrides=SHORT_OPEN_TRACK)
+    simulate_to_dir("open-track-gnss", d, seed=seed, ideal=ideal, overrides=SHORT_OPEN_TRACK)
     pl = P.load_pipeline(d / "pipeline.yaml")
     log, _ = P._read(pl)
     return P.build_problem(pl, log, lambda _m: None)[0]

@@ -243,7 +243,9 @@ class _Builder:
         for k, pim in enumerate(self.pims):
             self.g.add(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(int(self.bias_seg[k])), pim))
         n = self.pb.imu_noise
-        sig = np.r_[[n.accel_bias_sigma_mps2] * 3, [n.gyro_bias_sigma_radps] * 3]
+        # specific force at rest in b at the first keyframe: minus gravity
+        f_b = -self.R0[0].T @ geodesy.gravity_n(self.pos0[0], self.pb.origin)
+        sig = np.r_[n.accel_bias_prior_sigma_mps2(f_b), [n.gyro_bias_sigma_radps] * 3]
         bias0 = gtsam.imuBias.ConstantBias()
         T = self.pb.keyframes.bias_segment_s
         rw_var = np.r_[[n.accel_bias_rw_psd * T] * 3, [n.gyro_bias_rw_psd * T] * 3]
