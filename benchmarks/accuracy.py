@@ -22,13 +22,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 import yaml
+
+from provenance import git_commit, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results" / "accuracy.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
@@ -145,14 +146,11 @@ def main() -> None:
     for o in outage["outages"]:
         print(f"curved-line GNSS outage {o['start_s']:.0f}-{o['end_s']:.0f} s: largest error {o['max_3d_mm']:.1f} mm "
               f"(e/n/u {', '.join(f'{x:.1f}' for x in o['max_abs_enu_mm'])} mm)")
-    result = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                       cwd=Path(__file__).parent).stdout.strip(),
+    result = {"commit": git_commit(),
               "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(), "seeds": args.seeds,
               "targets_mm": TARGETS, "seed_002_mm": SEED_002, "open_track_gnss": {"runs": rows, "summary": summary},
               "curved_line_outage": outage}
-    args.out.parent.mkdir(exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_result(args.out, result)
 
 
 if __name__ == "__main__":

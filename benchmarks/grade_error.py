@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from provenance import git_commit, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results" / "grade_error.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
@@ -133,14 +134,11 @@ def main() -> None:
     print(f"RMS over the seeds: {rms}; correlation of grade error and bias error {corr:.3f}; "
           f"with the grade the fixes' errors imply {corr_gnss:.3f}; "
           f"GNSS-only bound of the grade (seed {rows[0]['seed']}): {rows[0]['gnss_grade_bound_urad']:.1f} urad")
-    result = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                       cwd=Path(__file__).parent).stdout.strip(),
+    result = {"commit": git_commit(),
               "date": time.strftime("%Y-%m-%d"), "label": args.label, "runs_made_by": args.made_by, "seeds": args.seeds, "runs": rows,
               "rms": rms, "correlation_grade_bias_error": corr,
               "correlation_grade_gnss_implied": corr_gnss}
-    args.out.parent.mkdir(exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_result(args.out, result)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import yaml
 
+from provenance import git_commit
+
 RESULTS = Path(__file__).resolve().parent / "results" / "long_run.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 ROUND_TRIP_KM = 2.04
@@ -101,8 +103,7 @@ def main() -> None:
                  if "batch" in row else ""), flush=True)
     ratio = rows[-1]["peak_rss_mb"] / rows[0]["peak_rss_mb"]
     print(f"peak ratio {rows[-1]['km']:.0f} km / {rows[0]['km']:.0f} km: {ratio:.2f} (target <= 1.5)")
-    result = {"commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                       cwd=Path(__file__).parent).stdout.strip(),
+    result = {"commit": git_commit(),
               "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(), "chunk_s": args.chunk_s,
               "overlap_s": args.overlap_s, "runs": rows, "peak_ratio_longest_to_shortest": ratio,
               "target_ratio": 1.5}

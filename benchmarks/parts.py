@@ -20,12 +20,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
 
 from accuracy import run_variant, simulated
+from provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results" / "parts.json"
 
@@ -101,8 +101,7 @@ def main() -> None:
                                                   max(r["vertical_adev_5m_mm"] for r in default)],
     }
     print(json.dumps(summary, indent=1))
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                            cwd=Path(__file__).parent).stdout.strip()
+    commit = git_commit()
     args.out.parent.mkdir(exist_ok=True)
     args.out.write_text(json.dumps({"commit": commit, "part_s": args.part_s, "seeds": args.seeds,
                                    "machine": "2 shared CPUs (other agents' jobs running: times indicative)",

@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import time
 from dataclasses import replace
 from pathlib import Path
+
+from provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results" / "solver_cpu.json"
 
@@ -78,8 +79,7 @@ def main() -> None:
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
     stages = {k: round(v, 2) for k, v in res.timings_s.items()}
     result = {
-        "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                 cwd=Path(__file__).parent).stdout.strip(),
+        "commit": git_commit(),
         "date": time.strftime("%Y-%m-%d %H:%M"), "scenario": args.scenario,
         **({"seed": args.seed} if args.scenario == "bridge" else {}),
         "imu_samples": int(prob.imu.t_s.size), "keyframes": int(res.t_s.size),

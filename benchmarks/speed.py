@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from provenance import git_commit
+
 RESULTS = Path(__file__).resolve().parent / "results" / "speed.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
 
@@ -87,8 +89,7 @@ def main() -> None:
     metrics = json.loads((out / "metrics.json").read_text())
     samples = metrics["imu_samples"]
     result = {
-        "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                 cwd=Path(__file__).parent).stdout.strip(),
+        "commit": git_commit(),
         "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(),
         "imu_samples": samples, "duration_min": metrics["duration_s"] / 60, "keyframes": metrics["keyframes"],
         "factors": sum(metrics["factors"].values()), "wall_s": wall, "samples_per_s": samples / wall,
