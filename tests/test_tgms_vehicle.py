@@ -101,6 +101,17 @@ def test_faults_are_nan_listed_and_counted(survey):
     assert (survey["out"] / "report.html").read_text().count("data:image/png;base64") == 2
 
 
+def test_report_of_a_vision_run_folder_is_refused_in_one_line(survey, tmp_path, capsys):
+    """``trackfusion report`` of a vision run's folder: exit 2, one line naming its metrics.json,
+    nothing written (the run's own report.html stays as it was)."""
+    before = (survey["out"] / "report.html").read_bytes()
+    assert main(["report", str(survey["out"]), "--out", str(tmp_path / "r.html")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "metrics.json" in err[0] and "vision run" in err[0]
+    assert not (tmp_path / "r.html").exists()
+    assert (survey["out"] / "report.html").read_bytes() == before
+
+
 def test_missing_calibration_is_refused(survey, tmp_path, capsys):
     text = (survey["sim"] / "pipeline.yaml").read_text().replace("calibration.yaml", "nowhere.yaml")
     (tmp_path / "p.yaml").write_text(text.replace("log.mcap", str(survey["sim"] / "log.mcap"))

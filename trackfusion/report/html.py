@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import SensorDataError
+from ..errors import ReportError, SensorDataError
 from ..sensors.fileio import atomic_path, read_csv_table, read_json, read_sidecar, write_text_atomic
 from . import figures
 from .track_plots import column_label, column_unit, measured
@@ -71,6 +71,9 @@ def load_run(run_dir: str | Path, tables: dict[str, dict[str, np.ndarray]] | Non
         return tables[name]
 
     metrics = read_json(d / "metrics.json", f"not found (is {d} the output folder of 'trackfusion run'?)")
+    if "vision" in metrics:  # its figures are drawn from the log's frames and the calibration, not kept in the folder
+        raise ReportError(f"{d / 'metrics.json'}: the folder of a vision run, whose report.html 'trackfusion run' "
+                          "writes; re-rendering it from the folder alone is not supported")
     traj = table("trajectory.csv", TRAJECTORY_REQUIRED)
     geometry = geometry_meta = None
     if (d / "geometry.csv").is_file():
