@@ -224,3 +224,13 @@ def test_logs_with_and_without_message_indexes_read_the_same(tmp_path, monkeypat
         for side, stack in images.items():
             np.testing.assert_array_equal(log["images"][side][0:4], stack)
             np.testing.assert_array_equal(log["images"][side][2], stack[2])
+
+
+def test_a_log_without_a_camera_is_refused_naming_its_topic(tmp_path):
+    from trackfusion.errors import SensorDataError
+    from trackfusion.vision.image_log import read_vision_log, write_vision_log
+    t = np.arange(10) * 0.004
+    write_vision_log(tmp_path / "one_camera.mcap", t, np.zeros((10, 3)), np.tile([0, 0, 9.81], (10, 1)), t * 30.0,
+                     1e-3, t[2:6], {"left": np.zeros((4, 8, 10), np.uint8)})
+    with pytest.raises(SensorDataError, match=r"one_camera\.mcap: /camera/right/image: no messages"):
+        read_vision_log(tmp_path / "one_camera.mcap")

@@ -305,12 +305,10 @@ def read_vision_log(path: str | Path, sides: tuple[str, ...] = ("left", "right")
         images, times = {}, {}
         for topic, (schema_name, t_ns, messages) in channels.items():
             times[topic] = t_ns
-            if not len(messages):
-                raise SensorDataError(f"{p}: {topic}: no messages (a vision log needs the IMU, the encoder and both cameras)")
+            _require_messages(p, topic, messages)
             images[topics[topic]] = _frames(messages, f"{p}: {topic}", schema_name)
     for topic, got in ((IMU_TOPIC, imu), (ODOMETER_TOPIC, odo)):
-        if not got:
-            raise SensorDataError(f"{p}: {topic}: no messages (a vision log needs the IMU, the encoder and both cameras)")
+        _require_messages(p, topic, got)
     if t_imu != t_odo:
         raise SensorDataError(f"{p}: {ODOMETER_TOPIC}: not at the IMU's times")
     t_frames = [times[image_topic(s)] for s in sides]
@@ -319,6 +317,12 @@ def read_vision_log(path: str | Path, sides: tuple[str, ...] = ("left", "right")
     a = np.asarray(imu, float)
     return {"t_imu_s": np.asarray(t_imu, np.int64) * 1e-9, "gyro_b": a[:, :3], "accel_b": a[:, 3:],
             "encoder_m": np.asarray(odo, float), "t_frame_s": t_frames[0] * 1e-9, "images": images}
+
+
+def _require_messages(p: Path, topic: str, messages) -> None:
+    """:class:`SensorDataError` naming ``p`` and ``topic`` when ``messages`` is empty."""
+    if not len(messages):
+        raise SensorDataError(f"{p}: {topic}: no messages (a vision log needs the IMU, the encoder and both cameras)")
 
 
 def _image_channels(p: Path, summary, topics: dict) -> dict:
