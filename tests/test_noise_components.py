@@ -5,7 +5,7 @@ vectorised group whose true noise is ``k`` times its configured sigma."""
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import E
+from gtsam.symbol_shorthand import E, S
 
 from trackfusion.fusion import factors as fx
 from trackfusion.fusion import noise_components as nc
@@ -32,9 +32,9 @@ def _problem(k: float, seed: int = 3, outliers: int = 0):
     return truth, y, graph, build, bad
 
 
-def _solve(graph, builders, values):
+def _solve(graph, builders, values, symbol: str = "e"):
     gfg = graph.linearize(values)
-    state = gtsam.utilities.extractVectors(values, "e")
+    state = gtsam.utilities.extractVectors(values, symbol)
     for _, b in builders:
         fx.to_jacobian_factors(b(state), gfg)
     ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
@@ -121,3 +121,62 @@ def test_gate_on_the_estimated_noise():
     rejected = np.flatnonzero(nis_est > gate)
     assert set(bad) <= set(rejected) and rejected.size <= n_bad + 2
     assert np.sum(nis_stated > gate) > 5 * n_bad
+
+
+def _beat_errors(n: int, quantum: float, ticks_per_step: float = 20.1) -> np.ndarray:
+    """Errors (n,) of the increments of a counter read at a steady speed: each increment counts
+    ``floor`` of the travelled ticks' difference, so at 20.1 ticks a step nine in ten are 0.1 tick
+    off and every tenth a whole tick less 0.1 (the odometer's beat)."""
+    x = ticks_per_step * np.arange(n + 1) + 0.37
+    return np.diff(np.floor(x)) * quantum - ticks_per_step * quantum
+
+
+@pytest.mark.parametrize("use_quantum", [True, False])
+def test_quantised_group_estimated_at_its_error(use_quantum):
+    """A quantised sensor's one-tick increments are not outliers: with the quantum known, the
+    estimate is the errors' RMS; on the robust scale alone the gate throws them out and the
+    estimate falls to about the small errors' size."""
+    quantum, n = 1e-3, 600
+    rng = np.random.default_rng(5)
+    truth = np.cumsum(rng.normal(0.0, 1e-7, n))[:, None]  # a slow signal: redundancy near n
+    err = _beat_errors(n, quantum)[:, None]
+    y = truth + err
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(S(0), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, 1.0)))
+    for i in range(n - 1):
+        graph.add(gtsam.BetweenFactorVector(S(i), S(i + 1), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, 1e-7)))
+    keys = S(0) + np.arange(n)
+    configured = 0.5 * quantum  # its square is 3 x the errors: the datasheet prior (8 dof) pulls by < 1 %
+
+    def build(state) -> fx.LinearBlocks:
+        return fx.LinearBlocks([keys], [np.ones((n, 1, 1))], state - y, np.full((n, 1), configured), None)
+
+    values = gtsam.Values()
+    for i in range(n):
+        values.insert(S(i), y[i])
+    est = nc.NoiseComponents(quanta_m={"odometer": quantum} if use_quantum else {})
+    for _ in range(6):
+        builders = est.wrap([("odometer", build)], {})
+        values, tree, gfg, ordering = _solve(graph, builders, values, "s")
+        state = gtsam.utilities.extractVectors(values, "s")
+        if not est.update(builders, state, gfg, graph.size(), tree_factor(tree, ordering), {}):
+            break
+    g = est.estimates["odometer"]["along"]
+    sigma_over_rms = configured * np.sqrt(g.factor) / np.sqrt(np.mean(err**2))
+    if use_quantum:
+        assert g.rows == n
+        assert g.redundancy > 0.97 * n and sigma_over_rms == pytest.approx(1.0, abs=0.05)
+    else:
+        assert g.rows < 0.95 * n and sigma_over_rms < 0.5
+
+
+def test_odometer_quantum_from_the_log():
+    from trackfusion.fusion.preprocess import odometer_quantum_m
+    from trackfusion.sensors.types import OdometerData
+    from trackfusion.simulation.aiding import OdometerSpec, simulate_odometer
+    spec = OdometerSpec()
+    t = np.arange(0.0, 20.0, 0.01)
+    data, _ = simulate_odometer(t, 0.8 * t + 0.01 * np.sin(t), spec, np.random.default_rng(1))
+    assert odometer_quantum_m(data) == pytest.approx(np.pi * spec.wheel_diameter_m / spec.ticks_per_rev, rel=1e-9)
+    assert odometer_quantum_m(OdometerData(t, data.distance_m, np.zeros(t.size, np.int64))) == 0.0
+    assert odometer_quantum_m(OdometerData(t, np.zeros(t.size), np.zeros(t.size, np.int64))) == 0.0

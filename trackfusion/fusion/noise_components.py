@@ -10,6 +10,15 @@ one's) has the expectation ``r_gc f_gc / f0_gc`` (Helmert / Foerstner),
 ``r_gc = n_gc - tr(H_gc)`` the group's **redundancy**, ``H`` the hat matrix of the whole
 whitened, linearised system ``A (A^T A)^-1 A^T`` (rows Huber-weighted as the solve had them).
 
+**Quantised sensors.** A group may have a quantum (:attr:`NoiseComponents.quanta_m`: the
+odometer's distance per encoder tick). Its error is then not Gaussian: at a steady speed the
+ticks counted per keyframe interval beat against the interval, so most increments are nearly
+exact and every few tens one is a whole tick off. The robust scale sees the many small ones,
+and its gate would throw out the one-tick rows as outliers, leaving an estimate far below the
+error the data carry (bridge survey, seed 2: 0.0045 mm against the increments' 0.0089 mm).
+A residual no larger than one quantum is therefore always an inlier: quantisation alone can
+make it.
+
 **Redundancy.** ``tr(H_gc)`` is the Hutchinson estimate ``E[z_gc^T (H z)_gc]`` over random
 right-hand sides ``z ~ N(0, I)`` of every row of the graph (the IMU and prior factors too):
 ``H z = A delta`` with ``delta = (A^T A)^-1 A^T z``, solved for all draws at once with the Bayes
@@ -126,12 +135,14 @@ class GroupEstimate:
 
 @dataclass
 class NoiseComponents:
-    """The variance factors applied per group and component, and the last estimates."""
+    """The variance factors applied per group and component, and the last estimates;
+    ``quanta_m``: the quantum of a group's readings, by group (module docstring)."""
 
     applied: dict[str, dict[str, float]] = field(default_factory=dict)
     estimates: dict[str, dict[str, GroupEstimate]] = field(default_factory=dict)
     refits: int = 0
     seed: int = 0
+    quanta_m: dict[str, float] = field(default_factory=dict)
 
     def wrap(self, builders: list, labels: dict[str, np.ndarray]) -> list:
         """``builders`` (name, build) with the applied factors of their groups (the others as they are)."""
@@ -169,7 +180,7 @@ class NoiseComponents:
             if name not in COMPONENTS:
                 continue
             idx, comp = _component_index(name, blk, labels.get(name))
-            inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0))
+            inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0), self.quanta_m.get(name, 0.0))
             new = {}
             for c, cname in enumerate(comp):
                 f0 = self.applied.get(name, {}).get(cname, 1.0)
@@ -216,12 +227,13 @@ def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.nda
     return GroupEstimate(f, sigma, f0, r, n)
 
 
-def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray) -> np.ndarray:
+def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray, quantum: float = 0.0) -> np.ndarray:
     """(K,) the factors inside the gate :data:`GATE_TAIL` on the robust scale of their
     components: each component's variance factor from the median of its squared whitened
     residuals over its redundancy share ``1 - mean(h)`` (``h`` the draws' estimate of the hat
     matrix's diagonal), then each factor's squared whitened residual, scaled by it, against the
-    chi-square quantile of its rows."""
+    chi-square quantile of its rows. With a ``quantum`` (the residual's unit, e.g. m), a factor
+    whose every residual is at most one quantum is inside whatever the gate says."""
     e2 = blk.whitened() ** 2
     scale = np.ones(n_comp)
     for c in range(n_comp):
@@ -230,7 +242,10 @@ def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray
             share = float(np.clip(1.0 - hat[rows].mean(), 0.05, 1.0))
             scale[c] = max(np.median(e2[rows]) / (chi2.median(1) * share), 1e-300)
     q = np.sum(e2 / scale[idx], axis=1)
-    return q <= chi2.ppf(1.0 - GATE_TAIL, blk.residual.shape[1])
+    inside = q <= chi2.ppf(1.0 - GATE_TAIL, blk.residual.shape[1])
+    if quantum > 0.0:
+        inside |= np.all(np.abs(blk.residual) <= quantum, axis=1)
+    return inside
 
 
 def _hat_products(graph_groups: list, blocks: dict[str, fx.LinearBlocks], factor: TreeFactor,

@@ -424,6 +424,25 @@ class _Repairer:
                 last = i
 
 
+def _ticks_per_m(d_m: np.ndarray, ticks: np.ndarray, pair: np.ndarray) -> float:
+    """The least-squares ratio of tick to distance increments [1/m] over the sample pairs
+    ``pair`` (N-1,) bool of ``d_m`` (N,) [m] and ``ticks`` (N,); 0 where the distance does not move."""
+    dd_m, dn = np.diff(d_m)[pair], np.diff(ticks.astype(float))[pair]
+    if not np.any(dd_m != 0):
+        return 0.0
+    return float(dd_m @ dn / (dd_m @ dd_m))
+
+
+def odometer_quantum_m(odometer: OdometerData) -> float:
+    """The distance of one encoder tick [m]: the least-squares ratio of the distance to the tick
+    increments of the whole log (a log's distance is its ticks times the nominal tick length, so
+    this is that length); 0 when the log carries no ticks (all zero) or no motion."""
+    if odometer.ticks.size < 2 or not np.any(np.diff(odometer.ticks)):
+        return 0.0
+    ticks_per_m = _ticks_per_m(odometer.distance_m, odometer.ticks, np.ones(odometer.ticks.size - 1, bool))
+    return 1.0 / ticks_per_m if ticks_per_m > 0 else 0.0
+
+
 def _repaired_ticks(ticks: np.ndarray, d_m: np.ndarray, flagged: np.ndarray, threshold_m: float) -> np.ndarray:
     """Ticks (N,) consistent with the repaired distance ``d_m`` (N,) [m] at the ``flagged`` indices.
 
@@ -436,10 +455,7 @@ def _repaired_ticks(ticks: np.ndarray, d_m: np.ndarray, flagged: np.ndarray, thr
     good = np.ones(d_m.size, dtype=bool)
     good[flagged] = False
     pair = good[1:] & good[:-1]
-    dd_m, dn = np.diff(d_m)[pair], np.diff(ticks.astype(float))[pair]
-    if flagged.size == 0 or not np.any(dd_m != 0):
-        return out
-    ticks_per_m = float(dd_m @ dn / (dd_m @ dd_m))
+    ticks_per_m = _ticks_per_m(d_m, ticks, pair) if flagged.size else 0.0
     if ticks_per_m <= 0:
         return out
     unflagged = np.flatnonzero(good)                           # not empty: some pair is unflagged

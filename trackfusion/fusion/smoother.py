@@ -30,6 +30,7 @@ from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .normal_solve import tree_factor
 from .preintegration import preintegrate
+from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
 from ..parallel import dask_client
 from .partitioned import MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, part_marginals
@@ -912,7 +913,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     # a run in chunks keeps the configured noise (a chunk's own estimate would break the hand-over's
     # continuity with its neighbours); fusion/noise_components.py
     chunked = join is not None or hand_over_t_s is not None
-    components = nc.NoiseComponents() if problem.factors.noise_estimation.enabled and not chunked else None
+    components = None
+    if problem.factors.noise_estimation.enabled and not chunked:
+        components = nc.NoiseComponents(quanta_m={"odometer": odometer_quantum_m(problem.odometer)} if with_scale else {})
     for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         graph = gtsam.NonlinearFactorGraph(base_graph)
         b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
