@@ -318,8 +318,9 @@ def exit_now(code: int) -> NoReturn:
     running, the ordinary exit (which waits for them)."""
     import atexit
     import os
-    import threading
-    if threading.active_count() > 1:
+
+    from .forked import other_threads_running
+    if other_threads_running():
         sys.exit(code)
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):

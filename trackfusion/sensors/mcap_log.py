@@ -30,8 +30,6 @@ worker processes on a machine with two CPUs).
 
 from __future__ import annotations
 
-import collections
-import concurrent.futures
 import io
 import itertools
 import json
@@ -39,8 +37,6 @@ import operator
 import os
 import struct
 import zlib
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -53,7 +49,7 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata
                           SummaryOffset)
 
 from .. import __version__
-from ..forked import can_fork, fork_context
+from ..forked import ForkedPool, result_of, thread_map
 from ..errors import SensorDataError
 from . import cdr, schemas
 from .fileio import atomic_path
@@ -508,24 +504,21 @@ def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
     lengths = np.fromiter(map(len, merged.payloads), dtype=np.int64, count=len(merged.payloads))
     bounds = _chunk_bounds(lengths + 31, CHUNK_SIZE_BYTES)
     chunk_indexes = []
-    with ThreadPoolExecutor(max_workers=2) as pool:  # zstd releases the GIL; results keep their order
-        raw_chunks = (_chunk_records(merged, lengths, a, b) for a, b in bounds)
-        pending = [(raw, pool.submit(_compress, raw)) for raw in raw_chunks]
-        for (a, b), (raw, future) in zip(bounds, pending):
-            comp = future.result()
-            t0, t1 = int(merged.log_time_ns[a:b].min()), int(merged.log_time_ns[a:b].max())
-            body = struct.pack("<QQQII", t0, t1, len(raw), zlib.crc32(raw), 4) + b"zstd" + struct.pack(
-                "<Q", len(comp))
-            head = _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp))
-            start = out.put(head + body)
-            out.put(comp)
-            index_bytes, index_at = _message_indexes(merged, lengths, a, b, out.pos)
-            out.put(index_bytes)
-            chunk_indexes.append(ChunkIndex(
-                message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
-                chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
-                message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
-                uncompressed_size=len(raw)))
+    raw_chunks = (_chunk_records(merged, lengths, a, b) for a, b in bounds)
+    for (raw, comp), (a, b) in zip(thread_map(_compress, raw_chunks, workers=2), bounds):  # zstd releases the GIL
+        t0, t1 = int(merged.log_time_ns[a:b].min()), int(merged.log_time_ns[a:b].max())
+        body = struct.pack("<QQQII", t0, t1, len(raw), zlib.crc32(raw), 4) + b"zstd" + struct.pack(
+            "<Q", len(comp))
+        head = _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp))
+        start = out.put(head + body)
+        out.put(comp)
+        index_bytes, index_at = _message_indexes(merged, lengths, a, b, out.pos)
+        out.put(index_bytes)
+        chunk_indexes.append(ChunkIndex(
+            message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
+            chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
+            message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
+            uncompressed_size=len(raw)))
     return chunk_indexes
 
 
@@ -725,7 +718,7 @@ class _RawChannel:
         batches = []
         while pending:  # popped: a batch left in ``pending`` would stay alive through the join
             first, result = pending.pop(0)
-            result = result.result() if isinstance(result, Future) else result
+            result = result_of(result)
             if isinstance(result, tuple):  # the first invalid record is in the first bad batch
                 raise _Bad(first + result[0], result[1])
             batches.append(result)
@@ -801,46 +794,24 @@ _MAX_IN_FLIGHT = 2
 
 
 class _Decoder:
-    """Decodes the payload batches of a scan in two worker processes while the scan goes on
-    (results are taken in batch order: identical to decoding them in turn). The workers are
-    forked (a spawned worker would import the caller's main script again, and every import
-    anew); they only run :func:`_decode_batch`. Without two CPUs, without ``fork``, inside a
-    worker process (e.g. ``trackfusion batch``) or where processes cannot be started, batches
-    are decoded in this process."""
+    """Decodes the payload batches of a scan in two forked worker processes while the scan goes
+    on (:class:`~trackfusion.forked.ForkedPool`; results are taken in batch order: identical to
+    decoding them in turn); they only run :func:`_decode_batch`. Without two CPUs, without
+    ``fork``, inside a worker process (e.g. ``trackfusion batch``) or where processes cannot be
+    started, batches are decoded in this process."""
 
     def __init__(self):
-        self.pool: ProcessPoolExecutor | None = None
-        self.in_flight: collections.deque[Future] = collections.deque()
-        self.parallel = can_fork(DECODE_WORKERS)
+        self.pool = ForkedPool(DECODE_WORKERS, _MAX_IN_FLIGHT)
 
     def decode(self, payloads: list[bytes], schema: str) -> Any:
         """A future of :func:`_decode_batch` (or its result when decoding here; CDR batches are
         always decoded here: they take less time than sending them to a worker)."""
         if schema in cdr.LAYOUTS:
             return _decode_batch(payloads, schema)
-        if self.parallel and self.pool is None:
-            try:
-                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS, mp_context=fork_context())
-            except (OSError, ValueError):
-                self.parallel = False
-        future = None
-        if self.pool is not None:
-            try:
-                future = self.pool.submit(_decode_batch, payloads, schema)
-            except (BrokenProcessPool, RuntimeError):  # a worker died (e.g. out of memory): go on here
-                self.close()
-                self.parallel = False
-        if future is None:
-            return _decode_batch(payloads, schema)
-        self.in_flight.append(future)
-        while len(self.in_flight) > _MAX_IN_FLIGHT:
-            concurrent.futures.wait([self.in_flight.popleft()])
-        return future
+        return self.pool.submit(_decode_batch, payloads, schema)
 
     def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.pool = None
+        self.pool.close()
 
 
 @dataclass
