@@ -206,68 +206,90 @@ def _streams(log: SensorLog, encoding: str = "ros2", offset_ns: int = 0) -> list
     log_time (``fused.mcap`` on the survey's absolute clock; the payloads stay as in the log, as
     :func:`copy_log` keeps them)."""
     out: list[_Stream] = []
-    if log.imu is not None and encoding == "json":
-        d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
-        out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
-    elif log.imu is not None:
-        d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s)
-        values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
-                  "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
-                  "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
-        out.append(_cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns))
-    if log.odometer is not None and encoding == "json":
-        d, topic = log.odometer, "/odometer"
+    if log.imu is not None:
+        out.append(_imu_stream(log.imu, encoding, offset_ns))
+    if log.odometer is not None:
+        out.append(_odometer_stream(log.odometer, encoding, offset_ns))
+    if log.gnss is not None:
+        out.append(_gnss_stream(log.gnss, offset_ns))
+    for sid in sorted(log.total_stations):
+        out.append(_total_station_stream(sid, log.total_stations[sid], offset_ns))
+    if log.inclinometer is not None:
+        d = log.inclinometer
+        out.append(_json_stream("/inclinometer", schemas.INCLINATION, d.t_s, offset_ns,
+                                [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())]))
+    if log.gauge is not None:
+        out.append(_json_stream("/gauge", schemas.GAUGE, log.gauge.t_s, offset_ns,
+                                [("gauge_m", log.gauge.gauge_m, ())]))
+    return out
+
+
+def _json_stream(topic: str, schema: str, t_s: np.ndarray, offset_ns: int,
+                 named: list[tuple[str, Any, tuple[int, ...]]]) -> _Stream:
+    """A JSON channel of ``schema`` whose payloads are the ``named`` columns (name, values, trailing
+    shape per message) checked by :func:`_columns`; ``t_s`` (N,) [s] on the log's clock."""
+    ns = _log_time_ns(topic, t_s) + offset_ns
+    return _Stream(topic, schema, ns, _format(schema, _columns(topic, ns.size, named)))
+
+
+def _imu_stream(d: ImuData, encoding: str, offset_ns: int) -> _Stream:
+    """``/imu``: CDR ``sensor_msgs/msg/Imu`` (orientation unknown), or JSON when ``encoding`` is "json"."""
+    topic = "/imu"
+    if encoding == "json":
+        return _json_stream(topic, schemas.IMU, d.t_s, offset_ns,
+                            [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
+    ns = _log_time_ns(topic, d.t_s)
+    values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
+              "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
+              "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
+    return _cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns)
+
+
+def _odometer_stream(d: OdometerData, encoding: str, offset_ns: int) -> _Stream:
+    """``/odometer``: CDR of :data:`CDR_ODOMETER`, or JSON when ``encoding`` is "json"; ticks
+    must be integers."""
+    topic = "/odometer"
+    if encoding == "json":
         ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
         if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
             raise _fail(topic, "ticks must be integers")
-        out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
-    elif log.odometer is not None:
-        d, topic = log.odometer, "/odometer"
-        ns = _log_time_ns(topic, d.t_s)
-        ticks = np.asarray(d.ticks)
-        if ticks.dtype.kind == "f" and not np.array_equal(ticks, np.rint(ticks)):
-            raise _fail(topic, "ticks must be integers")
-        values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
-                  "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
-        out.append(_cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns))
-    if log.gnss is not None:
-        d, topic = log.gnss, "/gnss"
-        own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
-        ns = own + offset_ns
-        n = ns.size
-        cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
-            ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
-            ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
-        out.append(_Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols)))
-    for sid in sorted(log.total_stations):
-        d = log.total_stations[sid]
-        topic = schemas.TOTAL_STATION_PREFIX + sid
-        if not sid or "/" in sid:
-            raise _fail(topic, "station id must be a non-empty name without '/'")
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
-                                         ("zenith_angle_rad", d.zenith_angle_rad, ()),
-                                         ("slope_distance_m", d.slope_distance_m, ())])
-        prism = np.asarray(d.prism_id, dtype=object)
-        if prism.shape != (ns.size,):
-            raise _fail(topic, f"prism_id has shape {prism.shape}, expected {(ns.size,)}")
-        cols.append([json.dumps(str(p)) for p in prism.tolist()])
-        out.append(_Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols)))
-    if log.inclinometer is not None:
-        d, topic = log.inclinometer, "/inclinometer"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())])
-        out.append(_Stream(topic, schemas.INCLINATION, ns, _format(schemas.INCLINATION, cols)))
-    if log.gauge is not None:
-        d, topic = log.gauge, "/gauge"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("gauge_m", d.gauge_m, ())])
-        out.append(_Stream(topic, schemas.GAUGE, ns, _format(schemas.GAUGE, cols)))
-    return out
+        return _Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols))
+    ns = _log_time_ns(topic, d.t_s)
+    ticks = np.asarray(d.ticks)
+    if ticks.dtype.kind == "f" and not np.array_equal(ticks, np.rint(ticks)):
+        raise _fail(topic, "ticks must be integers")
+    values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
+              "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
+    return _cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns)
+
+
+def _gnss_stream(d: GnssData, offset_ns: int) -> _Stream:
+    """``/gnss`` as JSON location fixes; the payload's timestamp stays on the log's clock."""
+    topic = "/gnss"
+    own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
+    ns = own + offset_ns
+    n = ns.size
+    cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
+        ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
+        ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
+    return _Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols))
+
+
+def _total_station_stream(sid: str, d: TotalStationData, offset_ns: int) -> _Stream:
+    """The polar observations of total station ``sid`` (a name without '/') as JSON."""
+    topic = schemas.TOTAL_STATION_PREFIX + sid
+    if not sid or "/" in sid:
+        raise _fail(topic, "station id must be a non-empty name without '/'")
+    ns = _log_time_ns(topic, d.t_s) + offset_ns
+    cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
+                                     ("zenith_angle_rad", d.zenith_angle_rad, ()),
+                                     ("slope_distance_m", d.slope_distance_m, ())])
+    prism = np.asarray(d.prism_id, dtype=object)
+    if prism.shape != (ns.size,):
+        raise _fail(topic, f"prism_id has shape {prism.shape}, expected {(ns.size,)}")
+    cols.append([json.dumps(str(p)) for p in prism.tolist()])
+    return _Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols))
 
 
 def _metadata_records(metadata: dict[str, Any]) -> list[tuple[str, dict[str, str]]]:
