@@ -5,7 +5,9 @@
 - the core (fusion, registration, track, evaluation) never imports ``pipeline`` or ``report``;
 - random draws (``numpy.random``, ``default_rng``, the ``random`` module) only in ``simulation/``;
 - no file I/O (``open``, reads and writes of files, ``savefig``, ``yaml.safe_load``) in the
-  pure core packages ``fusion/``, ``registration/`` and ``track/``.
+  pure core packages ``fusion/``, ``registration/`` and ``track/``;
+- concurrency (``multiprocessing``, ``concurrent.futures``, ``threading``, ``dask``,
+  ``distributed``, ``os.fork``) only in the concurrency modules ``forked`` and ``parallel``.
 
 The ``ALLOWED_*`` lists name what is still there, each with the reason; they are meant to be
 emptied (a listed entry that no longer occurs fails too, so the lists cannot go stale).
@@ -37,6 +39,15 @@ ALLOWED_RANDOM: dict[str, str] = {
 
 #: (module, call) of file I/O in the pure core, and why
 ALLOWED_IO: dict[tuple[str, str], str] = {}
+
+#: the modules that fork, start pools or threads (every other module calls them)
+CONCURRENCY_MODULES = {"trackfusion.forked", "trackfusion.parallel"}
+
+#: modules outside CONCURRENCY_MODULES that start processes or threads themselves, and why
+ALLOWED_CONCURRENCY: dict[str, str] = {}
+
+_CONCURRENCY_IMPORTS = ("multiprocessing", "concurrent", "threading", "_thread", "dask", "distributed")
+_FORK_CALLS = {"os.fork", "os.forkpty"}
 
 _IO_CALLS = {"open", "read_text", "read_bytes", "write", "write_text", "write_bytes", "savefig", "safe_load",
              "load_yaml", "read_csv_table", "write_csv_table", "atomic_path", "write_text_atomic"}
@@ -167,6 +178,23 @@ def _io_calls(module: str) -> set[str]:
     return out
 
 
+def _concurrency(module: str) -> set[str]:
+    """What of :data:`_CONCURRENCY_IMPORTS` ``module`` imports (anywhere in its file), and its
+    ``os.fork`` calls."""
+    found = set()
+    for node in ast.walk(ast.parse(MODULES[module][0].read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            names = [node.module or ""] + ([f"{node.module}.{a.name}" for a in node.names] if node.module == "os" else [])
+        elif isinstance(node, ast.Call):
+            names = [_dotted(node.func)]
+        else:
+            continue
+        found.update(n for n in names if n.split(".")[0] in _CONCURRENCY_IMPORTS or n in _FORK_CALLS)
+    return found
+
+
 def test_the_cycle_finder_finds_a_cycle():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert _cycles(graph) == [frozenset({"a", "b", "c"})]
@@ -213,3 +241,10 @@ def test_no_file_io_in_the_pure_core():
     found = {(m, c) for m in MODULES if _package(m) in PURE for c in _io_calls(m)}
     assert found == set(ALLOWED_IO)
     assert "read_text" in _io_calls("trackfusion.geometry_inputs")  # the check sees I/O where there is some
+
+
+def test_concurrency_only_in_the_concurrency_modules():
+    found = {m for m in MODULES if _concurrency(m)}
+    assert found - CONCURRENCY_MODULES == set(ALLOWED_CONCURRENCY), {m: sorted(_concurrency(m)) for m in found - CONCURRENCY_MODULES}
+    assert CONCURRENCY_MODULES <= found  # the check sees them where they are
+    assert "os.fork" in _concurrency("trackfusion.forked")

@@ -182,11 +182,11 @@ def test_raw_image_log_gives_the_png_log_s_geometry(survey, raw_survey):
 
 
 def test_a_bad_image_message_is_exit_2_naming_topic_and_record(survey, tmp_path, capsys):
-    from trackfusion.vision.image_log import read_vision_log, write_vision_log
+    from trackfusion.vision.image_log import ImuEncoderSamples, read_vision_log, write_vision_log
     log = read_vision_log(survey["sim"] / "log.mcap")
     good = log["images"]["left"][0]
-    write_vision_log(tmp_path / "bad.mcap", log["t_imu_s"], log["gyro_b"], log["accel_b"], log["encoder_m"], 1e-3,
-                     log["t_frame_s"][:3], {"left": [good, good[:-1], good], "right": [good] * 3},
+    motion = ImuEncoderSamples(log["t_imu_s"], log["gyro_b"], log["accel_b"], log["encoder_m"], 1e-3)
+    write_vision_log(tmp_path / "bad.mcap", motion, log["t_frame_s"][:3], {"left": [good, good[:-1], good], "right": [good] * 3},
                      image_encoding="raw")
     text = (survey["sim"] / "pipeline.yaml").read_text().replace("log.mcap", str(tmp_path / "bad.mcap"))
     for name in ("calibration.yaml", "design.csv"):
@@ -198,6 +198,12 @@ def test_a_bad_image_message_is_exit_2_naming_topic_and_record(survey, tmp_path,
     assert not (tmp_path / "o").exists()
 
 
+def _standstill(t):
+    """IMU and encoder samples at times ``t`` (N,) [s]: no rotation, gravity up, 30 m/s on 1 mm ticks."""
+    from trackfusion.vision.image_log import ImuEncoderSamples
+    return ImuEncoderSamples(t, np.zeros((t.size, 3)), np.tile([0, 0, 9.81], (t.size, 1)), t * 30.0, 1e-3)
+
+
 @pytest.mark.parametrize("encoding", ["png", "raw"])
 def test_logs_with_and_without_message_indexes_read_the_same(tmp_path, monkeypatch, encoding):
     import mcap.writer
@@ -207,8 +213,7 @@ def test_logs_with_and_without_message_indexes_read_the_same(tmp_path, monkeypat
     images = {side: rng.integers(0, 256, (4, 8, 10), dtype=np.uint8) for side in ("left", "right")}
 
     def write(path):
-        write_vision_log(path, t, np.zeros((10, 3)), np.tile([0, 0, 9.81], (10, 1)), t * 30.0, 1e-3, t[2:6],
-                         images, image_encoding=encoding)
+        write_vision_log(path, _standstill(t), t[2:6], images, image_encoding=encoding)
 
     write(tmp_path / "indexed.mcap")
 
@@ -230,7 +235,6 @@ def test_a_log_without_a_camera_is_refused_naming_its_topic(tmp_path):
     from trackfusion.errors import SensorDataError
     from trackfusion.vision.image_log import read_vision_log, write_vision_log
     t = np.arange(10) * 0.004
-    write_vision_log(tmp_path / "one_camera.mcap", t, np.zeros((10, 3)), np.tile([0, 0, 9.81], (10, 1)), t * 30.0,
-                     1e-3, t[2:6], {"left": np.zeros((4, 8, 10), np.uint8)})
+    write_vision_log(tmp_path / "one_camera.mcap", _standstill(t), t[2:6], {"left": np.zeros((4, 8, 10), np.uint8)})
     with pytest.raises(SensorDataError, match=r"one_camera\.mcap: /camera/right/image: no messages"):
         read_vision_log(tmp_path / "one_camera.mcap")

@@ -145,48 +145,34 @@ def _check_out_dirs(paths: Sequence[str], out_dirs: Sequence[str | None], force:
         OutputFolder(folder, force).check()
 
 
-def _local(jobs, workers: int, say, force: bool = False) -> list[SurveyOutcome]:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
+def _collect(jobs, completed, failure: Callable[[Exception], str], say) -> list[SurveyOutcome]:
+    """The outcomes of ``jobs`` in their order, taken from ``completed`` (the
+    :data:`~trackfusion.parallel.Completed` of each :func:`run_one` as it ends, each said); a
+    call that raised (its worker died, its task was lost) is an internal failure with the error
+    ``failure(exc)``."""
     outcomes: dict[int, SurveyOutcome] = {}
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {pool.submit(run_one, p, o, force): (i, p) for i, (p, o) in enumerate(jobs)}
-        for fut in as_completed(futures):
-            i, p = futures[fut]
-            try:
-                outcomes[i] = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the worker process died
-                outcomes[i] = SurveyOutcome(p, Path(p).stem, False, 0.0, error=f"worker died: {exc}",
-                                            error_kind="internal")
-            say(_line(outcomes[i], len(outcomes), len(jobs)))
+    for i, outcome, exc in completed:
+        if exc is not None:
+            p = jobs[i][0]
+            outcome = SurveyOutcome(p, Path(p).stem, False, 0.0, error=failure(exc), error_kind="internal")
+        outcomes[i] = outcome
+        say(_line(outcomes[i], len(outcomes), len(jobs)))
     return [outcomes[i] for i in range(len(jobs))]
+
+
+def _local(jobs, workers: int, say, force: bool = False) -> list[SurveyOutcome]:
+    from .parallel import completed_in_spawned_pool
+    completed = completed_in_spawned_pool(run_one, [(p, o, force) for p, o in jobs], workers)
+    return _collect(jobs, completed, lambda exc: f"worker died: {exc}", say)
 
 
 def _dask(jobs, workers: int, address: str | None, say, force: bool = False) -> list[SurveyOutcome]:
-    from .parallel import open_dask_client
-    client, cluster = open_dask_client(address, workers, "--engine dask", "--address")
-    from distributed import as_completed
-    say(f"batch: dask scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers")
-    outcomes: dict[int, SurveyOutcome] = {}
-    try:
-        futures = [client.submit(run_one, p, o, force, pure=False, key=f"survey-{i}-{Path(p).stem}")
-                   for i, (p, o) in enumerate(jobs)]
-        index = {f.key: i for i, f in enumerate(futures)}
-        for fut in as_completed(futures):
-            i = index[fut.key]
-            try:
-                outcomes[i] = fut.result()
-            except Exception as exc:  # noqa: BLE001 - the worker died or the task was lost
-                outcomes[i] = SurveyOutcome(jobs[i][0], Path(jobs[i][0]).stem, False, 0.0,
-                                            error=f"dask task failed: {type(exc).__name__}: {exc}",
-                                            error_kind="internal")
-            say(_line(outcomes[i], len(outcomes), len(jobs)))
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
-    return [outcomes[i] for i in range(len(jobs))]
+    from .parallel import completed_on_dask, open_dask
+    with open_dask(address, workers, "--engine dask", "--address") as client:
+        say(f"batch: dask scheduler {client.scheduler.address}, {len(client.scheduler_info()['workers'])} workers")
+        keys = [f"survey-{i}-{Path(p).stem}" for i, (p, _o) in enumerate(jobs)]
+        completed = completed_on_dask(client, run_one, [(p, o, force) for p, o in jobs], keys)
+        return _collect(jobs, completed, lambda exc: f"dask task failed: {type(exc).__name__}: {exc}", say)
 
 
 def _line(o: SurveyOutcome, done: int, total: int) -> str:

@@ -184,19 +184,8 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``trackfusion`` argument parser."""
-    p = argparse.ArgumentParser(prog="trackfusion", description=__doc__.splitlines()[0])
-    p.add_argument("--version", action="version", version=f"trackfusion {_version()}")
-    talk = p.add_mutually_exclusive_group()
-    talk.add_argument("-q", "--quiet", action="store_true", help="no progress, only warnings, errors and results")
-    talk.add_argument("-v", "--verbose", action="store_true", help="progress lines with the time since the start")
-    sub = p.add_subparsers(dest="command", required=True)
-    force = argparse.ArgumentParser(add_help=False)
-    force.add_argument("--force", action="store_true",
-                       help="write even where the output holds files trackfusion did not write "
-                            "(they are kept unless a new output has the same name; inputs are never replaced)")
-
+def _add_simulate_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``simulate``: a scenario into a folder (or ``--list``)."""
     s = sub.add_parser("simulate", help="simulate a survey scenario into a folder", parents=[force])
     s.add_argument("scenario", nargs="?", help="scenario name (see 'trackfusion simulate --list')")
     s.add_argument("--list", action="store_true", help="list the scenarios and exit")
@@ -207,21 +196,33 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scenario parameter (dotted key), repeatable")
     s.set_defaults(func=_cmd_simulate)
 
+
+def _add_inspect_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``inspect``: the per-topic summary of a raw log."""
     s = sub.add_parser("inspect", help="summarise a raw MCAP log")
     s.add_argument("log")
     s.set_defaults(func=_cmd_inspect)
 
+
+def _add_import_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``import``: CSV/text sensor files into a raw log."""
     s = sub.add_parser("import", help="import CSV/text sensor files into an MCAP raw log (docs/import.md)",
                        parents=[force])
     s.add_argument("mapping", help="mapping YAML: files, columns, units (paths relative to it)")
     s.add_argument("--out", required=True, help="MCAP log to write")
     s.set_defaults(func=_cmd_import)
 
+
+def _add_export_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``export``: a raw log as CSV files and an import mapping."""
     s = sub.add_parser("export", help="export an MCAP raw log as CSV files and an import mapping", parents=[force])
     s.add_argument("log")
     s.add_argument("--out", required=True, help="output folder")
     s.set_defaults(func=_cmd_export)
 
+
+def _add_init_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``init``: a pipeline YAML for a log."""
     from .sensors.imu import IMU_GRADES
     from .vehicles import VEHICLE_KINDS
     s = sub.add_parser("init", help="write a runnable, commented pipeline YAML for a log (docs/init.md)")
@@ -235,11 +236,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--force", action="store_true", help="overwrite an existing --out")
     s.set_defaults(func=_cmd_init)
 
+
+def _add_run_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``run``: one survey with its pipeline YAML."""
     s = sub.add_parser("run", help="process a survey with a pipeline YAML", parents=[force])
     s.add_argument("pipeline", help="pipeline YAML (paths inside are relative to its folder)")
     s.add_argument("--out", default=None, help="output folder (default: out/ beside the YAML)")
     s.set_defaults(func=_cmd_run)
 
+
+def _add_batch_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``batch``: many pipelines in parallel."""
     s = sub.add_parser("batch", help="run many pipelines in parallel (docs/batch.md); exit 3 if any failed",
                        parents=[force])
     s.add_argument("pipelines", nargs="+", metavar="PIPELINE.yaml")
@@ -252,6 +259,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", default=None, help="write the batch summary as JSON to this file")
     s.set_defaults(func=_cmd_batch)
 
+
+def _add_evaluate_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``evaluate``: relative accuracy against a reference."""
     s = sub.add_parser("evaluate", help="relative accuracy of a trajectory against a reference", parents=[force])
     s.add_argument("estimate")
     s.add_argument("reference")
@@ -260,6 +270,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="match estimate and reference by time (default) or chainage")
     s.set_defaults(func=_cmd_evaluate)
 
+
+def _add_report_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``report``: report.html (and report.pdf) of a run folder."""
     s = sub.add_parser("report", help="write report.html of a run folder (and report.pdf with --pdf)",
                        parents=[force])
     s.add_argument("run_dir", help="output folder of 'trackfusion run'")
@@ -267,6 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--pdf", action="store_true", help="also print it to RUN_DIR/report.pdf (needs chromium)")
     s.set_defaults(func=_cmd_report)
 
+
+def _add_calibrate_vision_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``calibrate-vision``: camera-laser units from calibration sets."""
     s = sub.add_parser("calibrate-vision", help="calibrate camera-laser units from calibration sets (docs/vision.md)",
                        parents=[force])
     s.add_argument("folder", help="a calibration set (calibration_set.yaml) or a folder of them (left/, right/)")
@@ -274,12 +290,38 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fit-k3", action="store_true", help="also fit the k3 distortion term (wide lenses)")
     s.set_defaults(func=_cmd_calibrate_vision)
 
+
+def _add_demo_parser(sub, force: argparse.ArgumentParser) -> None:
+    """``demo``: simulate and evaluate a survey, end to end."""
     s = sub.add_parser("demo", help="simulate a survey and evaluate it, end to end", parents=[force])
     s.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     s.add_argument("--seed", type=int, default=0, help="random seed of the simulated survey (default 0)")
     s.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scenario parameter (as in 'simulate'), e.g. a shorter survey")
     s.set_defaults(func=_cmd_demo)
+
+
+#: the subcommands' parsers in the order of the help: each adds its own to ``sub`` (the subparsers
+#: of :func:`build_parser`; ``force``: the parent parser of the shared ``--force`` option)
+_SUBCOMMAND_PARSERS = (_add_simulate_parser, _add_inspect_parser, _add_import_parser, _add_export_parser,
+                       _add_init_parser, _add_run_parser, _add_batch_parser, _add_evaluate_parser,
+                       _add_report_parser, _add_calibrate_vision_parser, _add_demo_parser)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``trackfusion`` argument parser."""
+    p = argparse.ArgumentParser(prog="trackfusion", description=__doc__.splitlines()[0])
+    p.add_argument("--version", action="version", version=f"trackfusion {_version()}")
+    talk = p.add_mutually_exclusive_group()
+    talk.add_argument("-q", "--quiet", action="store_true", help="no progress, only warnings, errors and results")
+    talk.add_argument("-v", "--verbose", action="store_true", help="progress lines with the time since the start")
+    sub = p.add_subparsers(dest="command", required=True)
+    force = argparse.ArgumentParser(add_help=False)
+    force.add_argument("--force", action="store_true",
+                       help="write even where the output holds files trackfusion did not write "
+                            "(they are kept unless a new output has the same name; inputs are never replaced)")
+    for add in _SUBCOMMAND_PARSERS:
+        add(sub, force)
     return p
 
 
@@ -318,8 +360,9 @@ def exit_now(code: int) -> NoReturn:
     running, the ordinary exit (which waits for them)."""
     import atexit
     import os
-    import threading
-    if threading.active_count() > 1:
+
+    from .forked import other_threads_running
+    if other_threads_running():
         sys.exit(code)
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):

@@ -1,4 +1,9 @@
-"""The toolkit's forked child processes: when they may be started (:func:`can_fork`, for every
+"""This process's own concurrency: its forked children, its pool of forked workers and its
+threads. With trackfusion/parallel.py (the smoother's part workers, ``trackfusion batch``'s
+surveys, Dask) the only module that forks, starts pools or threads, or imports
+``multiprocessing``, ``concurrent.futures`` or ``threading`` (tests/test_layout.py).
+
+The toolkit's forked child processes: when they may be started (:func:`can_fork`, for every
 user: the log reader's decode workers, sensors/mcap_log.py; the smoother's parts,
 trackfusion/parallel.py; the densification, fusion/densify_forked.py; the outputs, report/outputs.py;
 vision), and work done in forked children while this process goes on (a run's outputs on the
@@ -18,17 +23,27 @@ and reaps the children still running, so no child outlives a failed run.
 Without ``fork``, with fewer than 2 CPUs, inside a forked child or a worker process (e.g. of
 ``trackfusion batch``, which runs surveys side by side already), or with :data:`ENABLED` False,
 every function runs at once in this process (the same results and errors, in turn).
+
+:class:`ForkedPool` keeps a pool of forked workers for batches handed out while this process goes
+on (the log reader's decoding); :func:`thread_map` runs a function that releases the GIL (zstd
+compression) on two threads, results in order; :func:`other_threads_running` tells whether an
+exit must wait for threads.
 """
 
 from __future__ import annotations
 
+import collections
 import gc
 import multiprocessing
 import os
 import pickle
 import signal
+import threading
 import traceback
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, TypeVar
+
+if TYPE_CHECKING:  # (concurrent.futures is imported when a pool is used: not at the command line's start)
+    from concurrent.futures import Future, ProcessPoolExecutor
 
 from .errors import TrackfusionError
 
@@ -226,3 +241,78 @@ def _child(read_fd: int, write_fd: int, fn: Callable, args: tuple, kwargs: dict)
         code = 1
     finally:
         os._exit(code)
+
+
+class ForkedPool:
+    """``workers`` forked worker processes (a ``concurrent.futures`` pool, forked at the first
+    :meth:`submit`: a spawned worker would import the caller's main script again, and every import
+    anew) for work handed out while this process goes on; at most ``max_in_flight`` submitted
+    calls are pending at once. Where :func:`can_fork` says no for ``workers``, where the pool
+    cannot be started, or once a worker has died (e.g. out of memory), every call runs here, in
+    turn. :meth:`close` ends the pool."""
+
+    def __init__(self, workers: int, max_in_flight: int):
+        self.workers = workers
+        self.max_in_flight = max_in_flight
+        self.pool: ProcessPoolExecutor | None = None
+        self.in_flight: collections.deque[Future] = collections.deque()
+        self.parallel = can_fork(workers)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """A future of ``fn(*args)`` run in a worker (``fn`` and ``args`` picklable), or its value
+        when run here (class docstring); :func:`result_of` takes either. Waits while more than
+        ``max_in_flight`` futures are pending."""
+        import concurrent.futures
+        from concurrent.futures.process import BrokenProcessPool
+        if self.parallel and self.pool is None:
+            try:
+                self.pool = concurrent.futures.ProcessPoolExecutor(max_workers=self.workers, mp_context=fork_context())
+            except (OSError, ValueError):
+                self.parallel = False
+        future = None
+        if self.pool is not None:
+            try:
+                future = self.pool.submit(fn, *args)
+            except (BrokenProcessPool, RuntimeError):  # a worker died (e.g. out of memory): go on here
+                self.close()
+                self.parallel = False
+        if future is None:
+            return fn(*args)
+        self.in_flight.append(future)
+        while len(self.in_flight) > self.max_in_flight:
+            concurrent.futures.wait([self.in_flight.popleft()])
+        return future
+
+    def close(self) -> None:
+        """Shut the workers down (pending calls cancelled); later calls fork a new pool."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+
+
+def result_of(submitted: Any) -> Any:
+    """The value of a :meth:`ForkedPool.submit`: its future's result (waited for; raises the
+    call's exception), or the value itself when it was run here."""
+    from concurrent.futures import Future
+    return submitted.result() if isinstance(submitted, Future) else submitted
+
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def thread_map(fn: Callable[[_T], _R], items: Iterable[_T], workers: int = 2) -> Iterator[tuple[_T, _R]]:
+    """``(item, fn(item))`` for every item, in the order of ``items``, ``fn`` run on ``workers``
+    threads (worth it for a function that releases the GIL, such as zstd compression). Every item
+    is handed to the threads as it is drawn from ``items``, all of them before the first result is
+    given; leaving the loop early waits for the calls already started."""
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = [(item, pool.submit(fn, item)) for item in items]
+        for item, future in pending:
+            yield item, future.result()
+
+
+def other_threads_running() -> bool:
+    """True while a thread other than this process's main one is alive."""
+    return threading.active_count() > 1

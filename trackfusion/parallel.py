@@ -1,4 +1,11 @@
-"""Local worker processes for the smoother's time parts (fusion/partitioned.py).
+"""Work spread over worker processes: the smoother's time parts (fusion/partitioned.py) in
+forked children or on Dask, and ``trackfusion batch``'s surveys (batch.py) in a pool of spawned
+processes or on Dask. With trackfusion/forked.py (this process's forked children, its forked
+pool and threads) the only module that forks, starts pools or threads, or imports
+``multiprocessing``, ``concurrent.futures``, ``threading``, ``dask`` or ``distributed``
+(tests/test_layout.py).
+
+Local worker processes for the smoother's time parts (fusion/partitioned.py).
 
 One Gauss-Newton step with ``W`` workers: the parts are dealt into ``W`` contiguous groups;
 group 0 is worked on in this process, each other group in a child forked after the
@@ -14,16 +21,21 @@ its parts; every child has exited when a step returns or raises.
 With ``smoother.engine: dask`` (:func:`run_step_dask`) each group goes to an actor on a worker
 of a Dask cluster (:func:`dask_client`) instead: the same two halves, the parts' factors sent
 to it, the actor keeping its eliminations in between.
+
+A batch's surveys: :func:`completed_in_spawned_pool` runs them in spawned processes (a survey
+imports the toolkit afresh, nothing of this process inherited), :func:`completed_on_dask` as
+tasks of a client of :func:`open_dask`; both yield each outcome as soon as it is done.
 """
 
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import os
 import pickle
 import signal
 import threading
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 from .forked import can_fork, fork_context
 
@@ -187,9 +199,59 @@ def close_dask_clients() -> None:
     """Close every client (and local cluster) :func:`dask_client` opened."""
     while _CLIENTS:
         _, (client, cluster) = _CLIENTS.popitem()
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        _close(client, cluster)
+
+
+def _close(client, cluster) -> None:
+    client.close()
+    if cluster is not None:
+        cluster.close()
+
+
+@contextlib.contextmanager
+def open_dask(address: str | None, workers: int, engine_key: str, address_key: str) -> Iterator[Any]:
+    """The client of :func:`open_dask_client` for the ``with`` block, closed (and its local
+    cluster) when the block ends."""
+    client, cluster = open_dask_client(address, workers, engine_key, address_key)
+    try:
+        yield client
+    finally:
+        _close(client, cluster)
+
+
+#: one call's end: (its index among the calls, its value or None, the exception it raised or None)
+Completed = tuple[int, Any, "Exception | None"]
+
+
+def _outcome(index: int, future) -> Completed:
+    try:
+        return index, future.result(), None
+    except Exception as exc:  # noqa: BLE001 (handed to the caller: a worker died, a task was lost)
+        return index, None, exc
+
+
+def completed_in_spawned_pool(fn: Callable[..., Any], calls: Sequence[tuple], workers: int) -> Iterator[Completed]:
+    """``fn(*args)`` for every ``args`` of ``calls`` in a pool of ``workers`` spawned processes
+    (``fn`` and ``args`` picklable); yields each call's :data:`Completed` as it ends, in the order
+    they end (a worker that died: ``BrokenProcessPool`` as the exception). The pool is shut down
+    (waiting for its workers) when the loop ends."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(fn, *args): i for i, args in enumerate(calls)}
+        for future in as_completed(futures):
+            yield _outcome(futures[future], future)
+
+
+def completed_on_dask(client, fn: Callable[..., Any], calls: Sequence[tuple], keys: Sequence[str]
+                      ) -> Iterator[Completed]:
+    """``fn(*args)`` for every ``args`` of ``calls`` as tasks of the Dask ``client`` named
+    ``keys`` (not pure: each runs); yields each call's :data:`Completed` as it ends, in the order
+    they end (a lost worker or task: its exception)."""
+    from distributed import as_completed as dask_as_completed
+    futures = [client.submit(fn, *args, pure=False, key=key) for args, key in zip(calls, keys)]
+    index = {f.key: i for i, f in enumerate(futures)}
+    for future in dask_as_completed(futures):
+        yield _outcome(index[future.key], future)
 
 
 def run_step_dask(client, groups: list[list[int]], worker_cls: type, payloads: list[Any],

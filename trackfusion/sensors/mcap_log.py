@@ -30,8 +30,6 @@ worker processes on a machine with two CPUs).
 
 from __future__ import annotations
 
-import collections
-import concurrent.futures
 import io
 import itertools
 import json
@@ -39,8 +37,6 @@ import operator
 import os
 import struct
 import zlib
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -53,7 +49,7 @@ from mcap.records import (Channel, ChunkIndex, DataEnd, Footer, Header, Metadata
                           SummaryOffset)
 
 from .. import __version__
-from ..forked import can_fork, fork_context
+from ..forked import ForkedPool, result_of, thread_map
 from ..errors import SensorDataError
 from . import cdr, schemas
 from .fileio import atomic_path
@@ -210,68 +206,90 @@ def _streams(log: SensorLog, encoding: str = "ros2", offset_ns: int = 0) -> list
     log_time (``fused.mcap`` on the survey's absolute clock; the payloads stay as in the log, as
     :func:`copy_log` keeps them)."""
     out: list[_Stream] = []
-    if log.imu is not None and encoding == "json":
-        d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
-        out.append(_Stream(topic, schemas.IMU, ns, _format(schemas.IMU, cols)))
-    elif log.imu is not None:
-        d, topic = log.imu, "/imu"
-        ns = _log_time_ns(topic, d.t_s)
-        values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
-                  "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
-                  "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
-        out.append(_cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns))
-    if log.odometer is not None and encoding == "json":
-        d, topic = log.odometer, "/odometer"
+    if log.imu is not None:
+        out.append(_imu_stream(log.imu, encoding, offset_ns))
+    if log.odometer is not None:
+        out.append(_odometer_stream(log.odometer, encoding, offset_ns))
+    if log.gnss is not None:
+        out.append(_gnss_stream(log.gnss, offset_ns))
+    for sid in sorted(log.total_stations):
+        out.append(_total_station_stream(sid, log.total_stations[sid], offset_ns))
+    if log.inclinometer is not None:
+        d = log.inclinometer
+        out.append(_json_stream("/inclinometer", schemas.INCLINATION, d.t_s, offset_ns,
+                                [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())]))
+    if log.gauge is not None:
+        out.append(_json_stream("/gauge", schemas.GAUGE, log.gauge.t_s, offset_ns,
+                                [("gauge_m", log.gauge.gauge_m, ())]))
+    return out
+
+
+def _json_stream(topic: str, schema: str, t_s: np.ndarray, offset_ns: int,
+                 named: list[tuple[str, Any, tuple[int, ...]]]) -> _Stream:
+    """A JSON channel of ``schema`` whose payloads are the ``named`` columns (name, values, trailing
+    shape per message) checked by :func:`_columns`; ``t_s`` (N,) [s] on the log's clock."""
+    ns = _log_time_ns(topic, t_s) + offset_ns
+    return _Stream(topic, schema, ns, _format(schema, _columns(topic, ns.size, named)))
+
+
+def _imu_stream(d: ImuData, encoding: str, offset_ns: int) -> _Stream:
+    """``/imu``: CDR ``sensor_msgs/msg/Imu`` (orientation unknown), or JSON when ``encoding`` is "json"."""
+    topic = "/imu"
+    if encoding == "json":
+        return _json_stream(topic, schemas.IMU, d.t_s, offset_ns,
+                            [("gyro_radps", d.gyro_radps, (3,)), ("accel_mps2", d.accel_mps2, (3,))])
+    ns = _log_time_ns(topic, d.t_s)
+    values = {"angular_velocity": _checked(topic, ns.size, "gyro_radps", d.gyro_radps, (3,)),
+              "linear_acceleration": _checked(topic, ns.size, "accel_mps2", d.accel_mps2, (3,)),
+              "orientation": (0.0, 0.0, 0.0, 1.0), "orientation_covariance": _UNKNOWN_COVARIANCE}
+    return _cdr_stream(topic, CDR_IMU, "imu", ns, values, offset_ns)
+
+
+def _odometer_stream(d: OdometerData, encoding: str, offset_ns: int) -> _Stream:
+    """``/odometer``: CDR of :data:`CDR_ODOMETER`, or JSON when ``encoding`` is "json"; ticks
+    must be integers."""
+    topic = "/odometer"
+    if encoding == "json":
         ns = _log_time_ns(topic, d.t_s) + offset_ns
         cols = _columns(topic, ns.size, [("distance_m", d.distance_m, ()), ("ticks", np.asarray(d.ticks), ())])
         if np.asarray(d.ticks).dtype.kind == "f" and not np.array_equal(np.asarray(d.ticks), np.rint(d.ticks)):
             raise _fail(topic, "ticks must be integers")
-        out.append(_Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols)))
-    elif log.odometer is not None:
-        d, topic = log.odometer, "/odometer"
-        ns = _log_time_ns(topic, d.t_s)
-        ticks = np.asarray(d.ticks)
-        if ticks.dtype.kind == "f" and not np.array_equal(ticks, np.rint(ticks)):
-            raise _fail(topic, "ticks must be integers")
-        values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
-                  "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
-        out.append(_cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns))
-    if log.gnss is not None:
-        d, topic = log.gnss, "/gnss"
-        own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
-        ns = own + offset_ns
-        n = ns.size
-        cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
-            ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
-            ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
-        out.append(_Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols)))
-    for sid in sorted(log.total_stations):
-        d = log.total_stations[sid]
-        topic = schemas.TOTAL_STATION_PREFIX + sid
-        if not sid or "/" in sid:
-            raise _fail(topic, "station id must be a non-empty name without '/'")
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
-                                         ("zenith_angle_rad", d.zenith_angle_rad, ()),
-                                         ("slope_distance_m", d.slope_distance_m, ())])
-        prism = np.asarray(d.prism_id, dtype=object)
-        if prism.shape != (ns.size,):
-            raise _fail(topic, f"prism_id has shape {prism.shape}, expected {(ns.size,)}")
-        cols.append([json.dumps(str(p)) for p in prism.tolist()])
-        out.append(_Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols)))
-    if log.inclinometer is not None:
-        d, topic = log.inclinometer, "/inclinometer"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("roll_rad", d.roll_rad, ()), ("pitch_rad", d.pitch_rad, ())])
-        out.append(_Stream(topic, schemas.INCLINATION, ns, _format(schemas.INCLINATION, cols)))
-    if log.gauge is not None:
-        d, topic = log.gauge, "/gauge"
-        ns = _log_time_ns(topic, d.t_s) + offset_ns
-        cols = _columns(topic, ns.size, [("gauge_m", d.gauge_m, ())])
-        out.append(_Stream(topic, schemas.GAUGE, ns, _format(schemas.GAUGE, cols)))
-    return out
+        return _Stream(topic, schemas.ODOMETER, ns, _format(schemas.ODOMETER, cols))
+    ns = _log_time_ns(topic, d.t_s)
+    ticks = np.asarray(d.ticks)
+    if ticks.dtype.kind == "f" and not np.array_equal(ticks, np.rint(ticks)):
+        raise _fail(topic, "ticks must be integers")
+    values = {"distance_m": _checked(topic, ns.size, "distance_m", d.distance_m, ()),
+              "ticks": _checked(topic, ns.size, "ticks", ticks, ()).astype(np.int64)}
+    return _cdr_stream(topic, CDR_ODOMETER, "odometer", ns, values, offset_ns)
+
+
+def _gnss_stream(d: GnssData, offset_ns: int) -> _Stream:
+    """``/gnss`` as JSON location fixes; the payload's timestamp stays on the log's clock."""
+    topic = "/gnss"
+    own = _log_time_ns(topic, d.t_s)  # the payload's timestamp: the log's clock, as a copy keeps it
+    ns = own + offset_ns
+    n = ns.size
+    cols = [(own // 10**9).tolist(), (own % 10**9).tolist()] + _columns(topic, n, [
+        ("lat_deg", d.lat_deg, ()), ("lon_deg", d.lon_deg, ()), ("h_m", d.h_m, ()),
+        ("cov_enu_m2", d.cov_enu_m2, (3, 3)), ("fix_quality", np.asarray(d.fix_quality).astype(np.int64), ())])
+    return _Stream(topic, schemas.LOCATION_FIX, ns, _format(schemas.LOCATION_FIX, cols))
+
+
+def _total_station_stream(sid: str, d: TotalStationData, offset_ns: int) -> _Stream:
+    """The polar observations of total station ``sid`` (a name without '/') as JSON."""
+    topic = schemas.TOTAL_STATION_PREFIX + sid
+    if not sid or "/" in sid:
+        raise _fail(topic, "station id must be a non-empty name without '/'")
+    ns = _log_time_ns(topic, d.t_s) + offset_ns
+    cols = _columns(topic, ns.size, [("horizontal_angle_rad", d.horizontal_angle_rad, ()),
+                                     ("zenith_angle_rad", d.zenith_angle_rad, ()),
+                                     ("slope_distance_m", d.slope_distance_m, ())])
+    prism = np.asarray(d.prism_id, dtype=object)
+    if prism.shape != (ns.size,):
+        raise _fail(topic, f"prism_id has shape {prism.shape}, expected {(ns.size,)}")
+    cols.append([json.dumps(str(p)) for p in prism.tolist()])
+    return _Stream(topic, schemas.POLAR, ns, _format(schemas.POLAR, cols))
 
 
 def _metadata_records(metadata: dict[str, Any]) -> list[tuple[str, dict[str, str]]]:
@@ -508,24 +526,21 @@ def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
     lengths = np.fromiter(map(len, merged.payloads), dtype=np.int64, count=len(merged.payloads))
     bounds = _chunk_bounds(lengths + 31, CHUNK_SIZE_BYTES)
     chunk_indexes = []
-    with ThreadPoolExecutor(max_workers=2) as pool:  # zstd releases the GIL; results keep their order
-        raw_chunks = (_chunk_records(merged, lengths, a, b) for a, b in bounds)
-        pending = [(raw, pool.submit(_compress, raw)) for raw in raw_chunks]
-        for (a, b), (raw, future) in zip(bounds, pending):
-            comp = future.result()
-            t0, t1 = int(merged.log_time_ns[a:b].min()), int(merged.log_time_ns[a:b].max())
-            body = struct.pack("<QQQII", t0, t1, len(raw), zlib.crc32(raw), 4) + b"zstd" + struct.pack(
-                "<Q", len(comp))
-            head = _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp))
-            start = out.put(head + body)
-            out.put(comp)
-            index_bytes, index_at = _message_indexes(merged, lengths, a, b, out.pos)
-            out.put(index_bytes)
-            chunk_indexes.append(ChunkIndex(
-                message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
-                chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
-                message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
-                uncompressed_size=len(raw)))
+    raw_chunks = (_chunk_records(merged, lengths, a, b) for a, b in bounds)
+    for (raw, comp), (a, b) in zip(thread_map(_compress, raw_chunks, workers=2), bounds):  # zstd releases the GIL
+        t0, t1 = int(merged.log_time_ns[a:b].min()), int(merged.log_time_ns[a:b].max())
+        body = struct.pack("<QQQII", t0, t1, len(raw), zlib.crc32(raw), 4) + b"zstd" + struct.pack(
+            "<Q", len(comp))
+        head = _RECORD_HEAD.pack(_CHUNK, len(body) + len(comp))
+        start = out.put(head + body)
+        out.put(comp)
+        index_bytes, index_at = _message_indexes(merged, lengths, a, b, out.pos)
+        out.put(index_bytes)
+        chunk_indexes.append(ChunkIndex(
+            message_start_time=t0, message_end_time=t1, chunk_start_offset=start,
+            chunk_length=len(head) + len(body) + len(comp), message_index_offsets=index_at,
+            message_index_length=len(index_bytes), compression="zstd", compressed_size=len(comp),
+            uncompressed_size=len(raw)))
     return chunk_indexes
 
 
@@ -725,7 +740,7 @@ class _RawChannel:
         batches = []
         while pending:  # popped: a batch left in ``pending`` would stay alive through the join
             first, result = pending.pop(0)
-            result = result.result() if isinstance(result, Future) else result
+            result = result_of(result)
             if isinstance(result, tuple):  # the first invalid record is in the first bad batch
                 raise _Bad(first + result[0], result[1])
             batches.append(result)
@@ -801,46 +816,24 @@ _MAX_IN_FLIGHT = 2
 
 
 class _Decoder:
-    """Decodes the payload batches of a scan in two worker processes while the scan goes on
-    (results are taken in batch order: identical to decoding them in turn). The workers are
-    forked (a spawned worker would import the caller's main script again, and every import
-    anew); they only run :func:`_decode_batch`. Without two CPUs, without ``fork``, inside a
-    worker process (e.g. ``trackfusion batch``) or where processes cannot be started, batches
-    are decoded in this process."""
+    """Decodes the payload batches of a scan in two forked worker processes while the scan goes
+    on (:class:`~trackfusion.forked.ForkedPool`; results are taken in batch order: identical to
+    decoding them in turn); they only run :func:`_decode_batch`. Without two CPUs, without
+    ``fork``, inside a worker process (e.g. ``trackfusion batch``) or where processes cannot be
+    started, batches are decoded in this process."""
 
     def __init__(self):
-        self.pool: ProcessPoolExecutor | None = None
-        self.in_flight: collections.deque[Future] = collections.deque()
-        self.parallel = can_fork(DECODE_WORKERS)
+        self.pool = ForkedPool(DECODE_WORKERS, _MAX_IN_FLIGHT)
 
     def decode(self, payloads: list[bytes], schema: str) -> Any:
         """A future of :func:`_decode_batch` (or its result when decoding here; CDR batches are
         always decoded here: they take less time than sending them to a worker)."""
         if schema in cdr.LAYOUTS:
             return _decode_batch(payloads, schema)
-        if self.parallel and self.pool is None:
-            try:
-                self.pool = ProcessPoolExecutor(max_workers=DECODE_WORKERS, mp_context=fork_context())
-            except (OSError, ValueError):
-                self.parallel = False
-        future = None
-        if self.pool is not None:
-            try:
-                future = self.pool.submit(_decode_batch, payloads, schema)
-            except (BrokenProcessPool, RuntimeError):  # a worker died (e.g. out of memory): go on here
-                self.close()
-                self.parallel = False
-        if future is None:
-            return _decode_batch(payloads, schema)
-        self.in_flight.append(future)
-        while len(self.in_flight) > _MAX_IN_FLIGHT:
-            concurrent.futures.wait([self.in_flight.popleft()])
-        return future
+        return self.pool.submit(_decode_batch, payloads, schema)
 
     def close(self) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-            self.pool = None
+        self.pool.close()
 
 
 @dataclass

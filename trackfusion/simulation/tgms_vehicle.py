@@ -146,11 +146,11 @@ def write_tgms(sim: dict, sc: TgmsScenario, seed: int, out: Path) -> list[str]:
     """Write the folder's files into ``out`` (a staging folder); returns their names."""
     from ..sensors.fileio import write_text_atomic
     from ..vision.design_table import write_design_csv
-    from ..vision.image_log import write_vision_log
+    from ..vision.image_log import ImuEncoderSamples, write_vision_log
     from .vision_calibration import write_calibration_set
     run, f = sim["run"], sim["filmed"]
-    write_vision_log(out / "log.mcap", run.t_s, sim["gyro"], sim["accel"], sim["encoder_m"], 1e-3, run.t_s[f],
-                     sim["images"], metadata={"scenario": NAME, "seed": seed, "simulated": True},
+    motion = ImuEncoderSamples(run.t_s, sim["gyro"], sim["accel"], sim["encoder_m"], 1e-3)
+    write_vision_log(out / "log.mcap", motion, run.t_s[f], sim["images"], metadata={"scenario": NAME, "seed": seed, "simulated": True},
                      image_encoding=sc.image_encoding)
     for i, side in enumerate(("left", "right")):
         write_calibration_set(sim["sims"][side], out / "calibration" / side, n_poses=sc.calibration_poses,

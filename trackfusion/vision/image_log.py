@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import struct
 from collections import OrderedDict
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -232,13 +233,24 @@ def encode_png_message(image: np.ndarray, t_ns: int, frame_id: str) -> bytes:
     return msg.SerializeToString()
 
 
-def write_vision_log(path: str | Path, t_imu_s: np.ndarray, gyro_b: np.ndarray, accel_b: np.ndarray,
-                     encoder_m: np.ndarray, tick_m: float, t_frame_s: np.ndarray, images: dict,
+@dataclass(frozen=True)
+class ImuEncoderSamples:
+    """The IMU and the encoder of a vision log, sampled at the same times: ``t_imu_s`` (N,) [s],
+    ``gyro_b`` (N, 3) [rad/s], ``accel_b`` (N, 3) specific force [m/s^2], ``encoder_m`` (N,)
+    distance [m], counted in ticks of ``tick_m`` [m]."""
+
+    t_imu_s: np.ndarray
+    gyro_b: np.ndarray
+    accel_b: np.ndarray
+    encoder_m: np.ndarray
+    tick_m: float
+
+
+def write_vision_log(path: str | Path, motion: ImuEncoderSamples, t_frame_s: np.ndarray, images: dict,
                      metadata: dict | None = None, image_encoding: str = "png") -> None:
-    """Write ``path``: IMU (N,) times [s], gyro (N, 3) [rad/s], specific force (N, 3) [m/s^2],
-    encoder distance (N,) [m] in ticks of ``tick_m``, and per side the images (F, H, W) uint8 at
-    ``t_frame_s`` (F,) [s] as ``image_encoding`` (``"png"``: ``foxglove.CompressedImage``,
-    ``"raw"``: ``sensor_msgs/msg/Image``); zstd chunks for PNG images, lz4 chunks for raw ones
+    """Write ``path``: the IMU and encoder samples ``motion`` (``/imu``, ``/odometer``), and per
+    side the images (F, H, W) uint8 at ``t_frame_s`` (F,) [s] as ``image_encoding`` (``"png"``:
+    ``foxglove.CompressedImage``, ``"raw"``: ``sensor_msgs/msg/Image``); zstd chunks for PNG images, lz4 chunks for raw ones
     (noisy pixels: zstd takes about 0.6 ms of CPU an image to decompress, lz4 0.12 ms, for 45 %
     and 74 % of the size; ``benchmarks/vision_stages.py``), messages in time order per channel, ``metadata`` as one record
     ``trackfusion`` (``{"json": text}``)."""
@@ -247,7 +259,7 @@ def write_vision_log(path: str | Path, t_imu_s: np.ndarray, gyro_b: np.ndarray, 
     from ..sensors.fileio import atomic_path
     if image_encoding not in IMAGE_ENCODINGS:
         raise ValueError(f"image_encoding {image_encoding!r}: one of {', '.join(IMAGE_ENCODINGS)}")
-    ns_imu = np.round(np.asarray(t_imu_s) * 1e9).astype(np.int64)
+    ns_imu = np.round(np.asarray(motion.t_imu_s) * 1e9).astype(np.int64)
     ns_frame = np.round(np.asarray(t_frame_s) * 1e9).astype(np.int64)
     imu_tpl = schemas.CANONICAL[schemas.IMU].template
     odo_tpl = schemas.CANONICAL[schemas.ODOMETER].template
@@ -266,7 +278,8 @@ def write_vision_log(path: str | Path, t_imu_s: np.ndarray, gyro_b: np.ndarray, 
             encoding, encode = "cdr", encode_raw_message
         for side in images:
             ids[side] = w.register_channel(topic=image_topic(side), message_encoding=encoding, schema_id=sid)
-        ticks = np.round(np.asarray(encoder_m) / tick_m).astype(np.int64)
+        gyro_b, accel_b, encoder_m = motion.gyro_b, motion.accel_b, motion.encoder_m
+        ticks = np.round(np.asarray(encoder_m) / motion.tick_m).astype(np.int64)
         for i, ns in enumerate(ns_imu.tolist()):
             w.add_message(ids[IMU_TOPIC], ns, (imu_tpl % (*gyro_b[i].tolist(), *accel_b[i].tolist())).encode(), ns, i)
             w.add_message(ids[ODOMETER_TOPIC], ns, (odo_tpl % (float(encoder_m[i]), int(ticks[i]))).encode(), ns, i)
