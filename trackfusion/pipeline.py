@@ -32,6 +32,7 @@ from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame  # noqa: F401 (TrolleyFrame: trackfusion.pipeline's)
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.densify_forked import start_densify_forked
+from .fusion.trajectory import KeyframeStates
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .geometry_inputs import check_geometry_inputs, geometry_for_run
@@ -571,9 +572,10 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
     started = []
     with ForkedTasks(always_fork=True) as children:
         def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
-            started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
-                                                accel_bias, geodesy.gravity_n(pos_n, problem.origin),
-                                                earth_rate_n, max(1, (cfg.smoother.workers or 1) - 1)))
+            keys = KeyframeStates(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias,
+                                  geodesy.gravity_n(pos_n, problem.origin))
+            started.append(start_densify_forked(children, problem.imu, keys, earth_rate_n,
+                                                max(1, (cfg.smoother.workers or 1) - 1)))
         res = _smooth_batch(problem, say, on_solved, preintegrated)
         tic = time.perf_counter()
         dense = started[-1].result()
