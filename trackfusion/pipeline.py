@@ -357,9 +357,10 @@ def _checked_sensor_use(pipeline: Pipeline, log: SensorLog, origin: geodesy.Orig
     for line in used.defaulted + [f"{u['topic']} in the log, not used: {u['reason']}" for u in used.unused]:
         say(line)
     use = used.use
-    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use["gnss"] else None,
-                           odometer=log.odometer if use["odometer"] else None,
-                           inclinometer=log.inclinometer if use["inclinometer"] else None,
+    aiding = input_checks.AidingSensors(gnss=log.gnss if use["gnss"] else None,
+                                        odometer=log.odometer if use["odometer"] else None,
+                                        inclinometer=log.inclinometer if use["inclinometer"] else None)
+    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, aiding,
                            max_speed_mps=MAX_SPEED_MPS[cfg.vehicle.kind], vehicle=cfg.vehicle.kind)
     return used
 

@@ -430,12 +430,12 @@ class _Builder:
         ones = np.ones((used.size, 3))
         lever = pr.lever_arm_b
         group = kk * len(pr.station_ids) + sid  # readings sharing their keys: one factor
+        obs = fx.PrismObservations(lever, dt, t_imu, y, from_station)
 
         def build(state: _State) -> fx.LinearBlocks:
             R = state.R[kk]
             w_nb_b = w_ib_b - np.einsum("kji,j->ki", R, omega_ie_n)
-            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, lever, dt, t_imu, state.ts[sid], y,
-                                     from_station)
+            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, state.ts[sid], obs)
             return fx.LinearBlocks(keys, J, r, ones, st.huber_k, W, group)
 
         self.builders.append(("prism", build))
