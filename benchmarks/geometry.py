@@ -35,7 +35,7 @@ import numpy as np
 from trackfusion import geodesy
 from trackfusion import pipeline as P
 from trackfusion.fusion.smoother import smooth
-from trackfusion.fusion.trajectory import densify
+from trackfusion.fusion.trajectory import KeyframeStates, densify
 from trackfusion.sensors.fileio import read_csv_table
 from trackfusion.geometry_inputs import geometry_for_run
 from trackfusion.track.shortwave import inverse_chord_filter
@@ -76,9 +76,7 @@ def run_geometry(folder: Path, scenario: str, gauge_filter: str = "wiener", geom
     problem, _ = P.build_problem(pl, log, lambda m: None)
     problem, _ = P._prepare_total_stations(pl, log, problem, lambda m: None)
     res = smooth(problem, lambda m: None)
-    dense = densify(problem.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps,
-                    res.accel_bias_mps2, geodesy.gravity_n(res.pos_n, problem.origin),
-                    geodesy.earth_rate_n(problem.origin))
+    dense = densify(problem.imu, KeyframeStates.of(res, problem.origin), geodesy.earth_rate_n(problem.origin))
     chainage = P.chainage_along(dense, res, problem.odometer, problem.trolley.axis_b)
     return geometry_for_run(pl, problem, res, dense, chainage, log.gauge), dense, chainage, problem
 

@@ -101,9 +101,8 @@ def densify_rows(prob, res) -> None:
     """The one-batch run's densification (pipeline.run does it after the smoother)."""
     import numpy as np
     from trackfusion import geodesy
-    from trackfusion.fusion.trajectory import densify
-    densify(prob.imu, res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps, res.accel_bias_mps2,
-            geodesy.gravity_n(res.pos_n, prob.origin),
+    from trackfusion.fusion.trajectory import KeyframeStates, densify
+    densify(prob.imu, KeyframeStates.of(res, prob.origin),
             geodesy.earth_rate_n(prob.origin) if prob.factors.imu.earth_rate else np.zeros(3))
 
 

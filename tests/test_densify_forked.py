@@ -9,7 +9,7 @@ import pytest
 
 from trackfusion.forked import ForkedTasks
 from trackfusion.fusion import densify_forked as DF
-from trackfusion.fusion.trajectory import densify
+from trackfusion.fusion.trajectory import KeyframeStates, densify
 from trackfusion.rotations import so3_exp
 from trackfusion.sensors.types import ImuData
 
@@ -37,15 +37,15 @@ def keyframed():
     key_idx = np.r_[np.arange(0, n - 1, 50), n - 1]
     K = key_idx.size
     R = so3_exp(1e-3 * rng.normal(size=(K, 3)))
-    args = (imu, key_idx, R, rng.normal(size=(K, 3)), rng.normal(size=(K, 3)), 1e-6 * rng.normal(size=(K, 3)),
-            1e-4 * rng.normal(size=(K, 3)), np.tile([0.0, 0.0, -9.79], (K, 1)), np.array([0.0, 5e-5, 4e-5]))
-    return args
+    keys = KeyframeStates(key_idx, R, rng.normal(size=(K, 3)), rng.normal(size=(K, 3)), 1e-6 * rng.normal(size=(K, 3)),
+                          1e-4 * rng.normal(size=(K, 3)), np.tile([0.0, 0.0, -9.79], (K, 1)))
+    return imu, keys, np.array([0.0, 5e-5, 4e-5])
 
 
 def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
     monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)  # 100 intervals: 2 parts of whole blocks
     monkeypatch.setattr(DF, "BLOCK", 20)
-    assert DF.part_bounds(keyframed[1].size - 1, 2) == [(0, 40), (40, 100)]
+    assert DF.part_bounds(keyframed[1].key_idx.size - 1, 2) == [(0, 40), (40, 100)]
     whole = densify(*keyframed, block=20)
     for forked, workers, children in ((True, 2, 2), (True, 1, 1), (False, 2, 0)):  # forked parts, or one call here
         monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
@@ -64,12 +64,13 @@ def test_started_densification_uses_the_states_at_its_start(keyframed, monkeypat
     monkeypatch.setattr(DF, "BLOCK", 20)
     monkeypatch.setattr(DF, "can_fork", lambda n: True)
     whole = densify(*keyframed, block=20)
-    args = [a.copy() if isinstance(a, np.ndarray) else a for a in keyframed]
+    imu, shared, omega_ie_n = keyframed
+    keys = KeyframeStates(*(a.copy() for a in vars(shared).values()))
     with ForkedTasks(always_fork=True) as tasks:
-        job = DF.start_densify_forked(tasks, *args, workers=2)
+        job = DF.start_densify_forked(tasks, imu, keys, omega_ie_n, workers=2)
         assert len(tasks.tasks) == 2 and all(t.pid is not None for t in tasks.tasks)  # two children at work
-        args[2][:] = np.eye(3)  # R_nb, and pos_n, overwritten after the start
-        args[3][:] = 0.0
+        keys.R_nb[:] = np.eye(3)  # R_nb, and pos_n, overwritten after the start
+        keys.pos_n[:] = 0.0
         dense = job.result()
     for name in ("t_s", "R_nb", "pos_n", "vel_n"):
         np.testing.assert_array_equal(getattr(dense, name), getattr(whole, name))

@@ -148,10 +148,12 @@ def test_prism_jacobians(rng):
     q = np.column_stack([rng.normal(0, 1e-4, (K, 6)), rng.normal(0, 0.01, K), rng.normal(0, 2, K)])
     y, d = rng.normal(0, 50, (K, 3)), rng.normal(0, 500, (K, 3))
 
-    def f(R_=R, p_=p, v_=v, q_=q):
-        return fx.prism_residual(R_, p_, v_, w, lever, dt, t_imu, q_, y, d)[0]
+    obs = fx.PrismObservations(lever, dt, t_imu, y, d)
 
-    r, (Jp, Jv, Jq) = fx.prism_residual(R, p, v, w, lever, dt, t_imu, q, y, d)
+    def f(R_=R, p_=p, v_=v, q_=q):
+        return fx.prism_residual(R_, p_, v_, w, q_, obs)[0]
+
+    r, (Jp, Jv, Jq) = fx.prism_residual(R, p, v, w, q, obs)
     np.testing.assert_allclose(Jp, _pose_diff(lambda R_, p_: f(R_=R_, p_=p_), R, p, 3), atol=1e-6)
     np.testing.assert_allclose(Jv, _vec_diff(lambda v_: f(v_=v_), v, 3), atol=1e-6)
     np.testing.assert_allclose(Jq, _vec_diff(lambda q_: f(q_=q_), q, 3), atol=1e-5, rtol=1e-6)
@@ -171,5 +173,5 @@ def test_prism_zero_residual_on_consistent_data(rng):
     # the station sees the truth through the inverse of its correction (first order)
     y = truth - q[:, 3:6]
     y = y - np.cross(q[:, :3], y - centre)
-    r, _ = fx.prism_residual(R, p, v, w, lever, dt_nominal, t_imu, q, y, y - centre)
+    r, _ = fx.prism_residual(R, p, v, w, q, fx.PrismObservations(lever, dt_nominal, t_imu, y, y - centre))
     np.testing.assert_allclose(r, 0.0, atol=1e-6)  # second-order terms of the small rotation

@@ -21,9 +21,11 @@ OMEGA = np.array([0.0, 5.3e-5, 4.9e-5])
 
 def _args(rng):
     return dict(R_k=_rot(rng), p_k=rng.normal(0, 2, (K, 3)), R_j=_rot(rng), p_j=rng.normal(0, 2, (K, 3)),
-                v_j=rng.normal(0, 3, (K, 3)), tau_s=rng.uniform(0, 0.1, K), dR=_rot(rng), dp=rng.normal(0, 0.3, (K, 3)),
-                gravity_n=np.tile([0.0, 0.0, -9.8], (K, 1)), omega_ie_n=OMEGA, front_b=np.array([0.6, 0.7, -0.25]),
-                rear_b=np.array([-0.6, 0.7, -0.25]), R_vb=R_from_ypr(0.02, -0.01, 0.03))
+                v_j=rng.normal(0, 3, (K, 3)),
+                data=wp.WheelPathData(tau_s=rng.uniform(0, 0.1, K), dR=_rot(rng), dp=rng.normal(0, 0.3, (K, 3)),
+                                      gravity_n=np.tile([0.0, 0.0, -9.8], (K, 1)), omega_ie_n=OMEGA,
+                                      front_b=np.array([0.6, 0.7, -0.25]), rear_b=np.array([-0.6, 0.7, -0.25]),
+                                      R_vb=R_from_ypr(0.02, -0.01, 0.03)))
 
 
 def test_wheel_path_jacobians():
@@ -87,9 +89,9 @@ def truth_residuals():
     k, j = pairs.k, pairs.j
     dR, dp = wp.body_deltas(imu, key_idx[j], pairs.tau_s)
     omega = geodesy.earth_rate_n(sim.origin)
-    r, _ = wp.wheel_path_residual(st["R_nb"][k], st["pos_n"][k], st["R_nb"][j], st["pos_n"][j], st["vel_n"][j],
-                                  pairs.tau_s, dR, dp, geodesy.gravity_n(st["pos_n"][j], sim.origin), omega,
-                                  front_b, rear_b, R_vb)
+    data = wp.WheelPathData(pairs.tau_s, dR, dp, geodesy.gravity_n(st["pos_n"][j], sim.origin), omega,
+                            front_b, rear_b, R_vb)
+    r, _ = wp.wheel_path_residual(st["R_nb"][k], st["pos_n"][k], st["R_nb"][j], st["pos_n"][j], st["vel_n"][j], data)
     nhc, _, _ = fx.nhc_residual(st["R_nb"], st["vel_n"], st["omega_nb_b"], R_vb.T @ -lever_v, R_vb)
     moving = np.abs(st["sdot_mps"]) > 0.5
     return r, nhc[moving], pairs

@@ -32,6 +32,7 @@ from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame  # noqa: F401 (TrolleyFrame: trackfusion.pipeline's)
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
 from .fusion.densify_forked import start_densify_forked
+from .fusion.trajectory import KeyframeStates
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .geometry_inputs import check_geometry_inputs, geometry_for_run
@@ -356,9 +357,10 @@ def _checked_sensor_use(pipeline: Pipeline, log: SensorLog, origin: geodesy.Orig
     for line in used.defaulted + [f"{u['topic']} in the log, not used: {u['reason']}" for u in used.unused]:
         say(line)
     use = used.use
-    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, gnss=log.gnss if use["gnss"] else None,
-                           odometer=log.odometer if use["odometer"] else None,
-                           inclinometer=log.inclinometer if use["inclinometer"] else None,
+    aiding = input_checks.AidingSensors(gnss=log.gnss if use["gnss"] else None,
+                                        odometer=log.odometer if use["odometer"] else None,
+                                        inclinometer=log.inclinometer if use["inclinometer"] else None)
+    input_checks.check_log(log.imu, imu_spec, origin, src, pipeline.source, aiding,
                            max_speed_mps=MAX_SPEED_MPS[cfg.vehicle.kind], vehicle=cfg.vehicle.kind)
     return used
 
@@ -571,9 +573,10 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
     started = []
     with ForkedTasks(always_fork=True) as children:
         def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
-            started.append(start_densify_forked(children, problem.imu, key_idx, R_nb, pos_n, vel_n, gyro_bias,
-                                                accel_bias, geodesy.gravity_n(pos_n, problem.origin),
-                                                earth_rate_n, max(1, (cfg.smoother.workers or 1) - 1)))
+            keys = KeyframeStates(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias,
+                                  geodesy.gravity_n(pos_n, problem.origin))
+            started.append(start_densify_forked(children, problem.imu, keys, earth_rate_n,
+                                                max(1, (cfg.smoother.workers or 1) - 1)))
         res = _smooth_batch(problem, say, on_solved, preintegrated)
         tic = time.perf_counter()
         dense = started[-1].result()

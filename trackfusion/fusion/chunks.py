@@ -29,7 +29,7 @@ from .. import geodesy
 from ..sensors.types import ImuData, InclinometerData, OdometerData
 from .problem import FusionProblem, GnssFixes
 from .smoother import HandOver, SmootherResult, smooth
-from .trajectory import DenseTrajectory, densify
+from .trajectory import DenseTrajectory, KeyframeStates, densify
 
 #: sensor data kept beyond a chunk's ends (interpolation of the odometer and inclinometer) [s]
 _MARGIN_S = 1.0
@@ -142,9 +142,7 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
         part["key_idx"] = i0 + res.key_idx[k_start:k_end + 1]
         parts.append(part)
         kk = slice(0, k_end + 1)
-        dense = densify(sub.imu, res.key_idx[kk], res.R_nb[kk], res.pos_n[kk], res.vel_n[kk],
-                        res.gyro_bias_radps[kk], res.accel_bias_mps2[kk],
-                        geodesy.gravity_n(res.pos_n[kk], problem.origin), omega_ie_n)
+        dense = densify(sub.imu, KeyframeStates.of(res, problem.origin, kk), omega_ie_n)
         piece = _decimated(dense, i0 + int(res.key_idx[0]), every, skip_first=join is not None)
         del dense
         offset = 0 if problem.gnss is None else int(np.searchsorted(problem.gnss.t_s, sub.imu.t_s[0], "left"))

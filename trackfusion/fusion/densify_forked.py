@@ -15,7 +15,7 @@ import numpy as np
 
 from ..forked import ForkedTask, ForkedTasks, can_fork
 from ..sensors.types import ImuData
-from .trajectory import DenseTrajectory, densify
+from .trajectory import DenseTrajectory, KeyframeStates, densify
 
 #: intervals per block of :func:`densify` (its default); the parts are cut at multiples of it
 BLOCK = 2000
@@ -35,12 +35,10 @@ def part_bounds(n_intervals: int, workers: int) -> list[tuple[int, int]]:
 
 
 def _part(i: int) -> DenseTrajectory:
-    args, bounds = _JOB
+    (imu, keys, omega_ie_n), bounds = _JOB
     a, b = bounds[i]
-    imu, key_idx, *per_key, omega_ie_n = args
-    s = slice(a, b + 1)
-    d = densify(imu, key_idx[s], *(x[s] for x in per_key), omega_ie_n, block=BLOCK)
-    return d if b == key_idx.size - 1 else d.select(slice(None, -1))  # the next part starts there
+    d = densify(imu, keys.select(slice(a, b + 1)), omega_ie_n, block=BLOCK)
+    return d if b == keys.key_idx.size - 1 else d.select(slice(None, -1))  # the next part starts there
 
 
 class Densifying:
@@ -57,20 +55,19 @@ class Densifying:
         return self._dense
 
 
-def start_densify_forked(tasks: ForkedTasks, imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray,
-                         pos_n: np.ndarray, vel_n: np.ndarray, gyro_bias: np.ndarray, accel_bias: np.ndarray,
-                         gravity_n: np.ndarray, omega_ie_n: np.ndarray, workers: int) -> Densifying:
+def start_densify_forked(tasks: ForkedTasks, imu: ImuData, keys: KeyframeStates, omega_ie_n: np.ndarray,
+                         workers: int) -> Densifying:
     """Start :func:`~.trajectory.densify` of these keyframes (same arguments; ``omega_ie_n`` the
     Earth rate) in up to ``workers`` children forked by ``tasks`` (made with ``always_fork=True``;
     leaving its ``with`` block on an error kills them) and return at once; ``workers`` 1: one
     child does it all, beside this process. In this process, before returning, when forking is
     not possible here (:func:`trackfusion.forked.can_fork`) or the run is too short to be worth it."""
     global _JOB
-    if key_idx.size - 1 < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # (a child needs a CPU beside this one)
-        return Densifying(dense=densify(imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n,
-                                        omega_ie_n, block=BLOCK))
-    bounds = part_bounds(key_idx.size - 1, workers)
-    _JOB = ((imu, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n), bounds)
+    n_intervals = keys.key_idx.size - 1
+    if n_intervals < MIN_INTERVALS_PER_WORKER or not can_fork(2):  # (a child needs a CPU beside this one)
+        return Densifying(dense=densify(imu, keys, omega_ie_n, block=BLOCK))
+    bounds = part_bounds(n_intervals, workers)
+    _JOB = ((imu, keys, omega_ie_n), bounds)
     try:  # each child sees _JOB as it was at its fork
         return Densifying([tasks.submit(f"densification, part {i + 1} of {len(bounds)}", _part, i)
                            for i in range(len(bounds))])

@@ -18,6 +18,7 @@ numerical derivatives.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import gtsam
 import numpy as np
@@ -220,9 +221,21 @@ def inclinometer_residual(R_nb: np.ndarray, up_n: np.ndarray, up_b_measured: np.
 STATION_STATE_DIM = 8
 
 
+class PrismObservations(NamedTuple):
+    """K prism readings as :func:`prism_residual` sees them (fixed while the states change, built
+    once): lever_arm_b (3,) [m] IMU to prism in ``b``; dt_s (K,) [s] each reading's time after its
+    keyframe; t_imu_s (K,) [s] its IMU time; prism_n (K,3) [m] the reading in ``n`` with the nominal
+    set-up; from_station_n (K,3) [m] = prism_n minus the station centre."""
+
+    lever_arm_b: np.ndarray
+    dt_s: np.ndarray
+    t_imu_s: np.ndarray
+    prism_n: np.ndarray
+    from_station_n: np.ndarray
+
+
 def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, omega_nb_b: np.ndarray,
-                   lever_arm_b: np.ndarray, dt_s: np.ndarray, t_imu_s: np.ndarray, station_state: np.ndarray,
-                   prism_n: np.ndarray, from_station_n: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+                   station_state: np.ndarray, obs: PrismObservations) -> tuple[np.ndarray, list[np.ndarray]]:
     """Predicted minus (station-corrected) measured prism position, K readings at once.
 
     The reading was taken ``dt_s`` (K,) [s] after its keyframe on the synchronised clock; the
@@ -231,16 +244,16 @@ def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, omega
     (a small rotation about the station centre, then a translation: first order, < 1e-7 m for
     rotations of arcseconds at 1 km). The prism ``p + R lever`` moves with ``v + R (w x lever)``.
 
-    R_nb (K,3,3); pos_n, vel_n (K,3); omega_nb_b (K,3) [rad/s] held constant; lever_arm_b (3,);
-    t_imu_s (K,) [s] the reading's IMU time (for the drift); prism_n (K,3) the reading in ``n``
-    with the nominal set-up; from_station_n (K,3) = prism_n minus the station centre.
+    R_nb (K,3,3); pos_n, vel_n (K,3); omega_nb_b (K,3) [rad/s] held constant; station_state (K,8);
+    obs the readings (:class:`PrismObservations`; ``t_imu_s`` for the drift).
     Returns r (K,3) [m] and Jacobians [d/pose (K,3,6), d/vel (K,3,3), d/q (K,3,8)].
     """
+    lever_arm_b, dt_s, t_imu_s, from_station_n = obs.lever_arm_b, obs.dt_s, obs.t_imu_s, obs.from_station_n
     q = station_state
     dt = dt_s - q[:, 6] - 1e-6 * q[:, 7] * t_imu_s  # (K,)
     w_x_l = np.cross(omega_nb_b, lever_arm_b)
     u = vel_n + np.einsum("kij,kj->ki", R_nb, w_x_l)
-    corrected = prism_n + np.cross(q[:, :3], from_station_n) + q[:, 3:6]
+    corrected = obs.prism_n + np.cross(q[:, :3], from_station_n) + q[:, 3:6]
     r = pos_n + R_nb @ lever_arm_b + u * dt[:, None] - corrected
     d_theta = -R_nb @ skew(lever_arm_b) - np.einsum("kij,kjl->kil", R_nb, skew(w_x_l)) * dt[:, None, None]
     d_pose = np.concatenate([d_theta, R_nb], axis=2)

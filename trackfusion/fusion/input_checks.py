@@ -22,6 +22,8 @@ contradicts the log) with one line naming the file, the topic and the record ind
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .. import geodesy
@@ -203,26 +205,41 @@ def check_inclinometer_units(inc: InclinometerData, source: str) -> None:
                                   f"railway ({MAX_TILT_RAD} rad): degrees instead of radians?")
 
 
-def check_log(imu: ImuData, spec: ImuSpec, origin, source: str, pipeline_source: str, *,
-              gnss: GnssData | None = None, odometer: OdometerData | None = None,
-              inclinometer: InclinometerData | None = None, max_speed_mps: float = MAX_TROLLEY_SPEED_MPS,
+@dataclass(frozen=True)
+class AidingSensors:
+    """The aiding sensors' data a pipeline uses (None: not used, or not in the log)."""
+
+    gnss: GnssData | None = None
+    odometer: OdometerData | None = None
+    inclinometer: InclinometerData | None = None
+
+
+def _checked_gnss_positions(gnss: GnssData, origin, source: str) -> np.ndarray | None:
+    """The fixes' positions (N,3) [m] in ``n`` (``origin`` its :class:`~trackfusion.geodesy.Origin`)
+    once their latitude and longitude are degrees and :func:`check_gnss` passes; None without fixes."""
+    if not gnss.t_s.size:
+        return None
+    bad = ~(np.abs(gnss.lat_deg) <= 90.0) | ~(np.abs(gnss.lon_deg) <= 360.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SensorDataError(f"{source}: /gnss record {i}: latitude {gnss.lat_deg[i]!r}, longitude "
+                              f"{gnss.lon_deg[i]!r} are not geodetic degrees (swapped?)")
+    pos_n = geodesy.geodetic_to_n(gnss.lat_deg, gnss.lon_deg, gnss.h_m, origin)
+    check_gnss(gnss, pos_n, source)
+    return pos_n
+
+
+def check_log(imu: ImuData, spec: ImuSpec, origin, source: str, pipeline_source: str,
+              aiding: AidingSensors = AidingSensors(), *, max_speed_mps: float = MAX_TROLLEY_SPEED_MPS,
               vehicle: str = "trolley") -> None:
-    """Every check above on the sensors a pipeline uses (None: not used); ``origin``: the
+    """Every check above on the IMU and the ``aiding`` sensors a pipeline uses; ``origin``: the
     :class:`~trackfusion.geodesy.Origin` of ``n``; ``max_speed_mps``: the fastest the ``vehicle``
     (its kind, for the message) goes."""
     check_imu_saturation(imu, spec, source)
     check_imu_units(imu, spec, source, pipeline_source)
-    pos_n = None
-    if gnss is not None and gnss.t_s.size:
-        bad = ~(np.abs(gnss.lat_deg) <= 90.0) | ~(np.abs(gnss.lon_deg) <= 360.0)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise SensorDataError(f"{source}: /gnss record {i}: latitude {gnss.lat_deg[i]!r}, longitude "
-                                  f"{gnss.lon_deg[i]!r} are not geodetic degrees (swapped?)")
-        pos_n = geodesy.geodetic_to_n(gnss.lat_deg, gnss.lon_deg, gnss.h_m, origin)
-        check_gnss(gnss, pos_n, source)
-    if odometer is not None:
-        check_odometer_units(odometer, source, gnss_path_length_m(pos_n) if pos_n is not None else None,
+    pos_n = _checked_gnss_positions(aiding.gnss, origin, source) if aiding.gnss is not None else None
+    if aiding.odometer is not None:
+        check_odometer_units(aiding.odometer, source, gnss_path_length_m(pos_n) if pos_n is not None else None,
                              max_speed_mps, vehicle)
-    if inclinometer is not None:
-        check_inclinometer_units(inclinometer, source)
+    if aiding.inclinometer is not None:
+        check_inclinometer_units(aiding.inclinometer, source)

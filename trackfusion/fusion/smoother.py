@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import gtsam
 import numpy as np
@@ -36,6 +36,9 @@ from ..parallel import dask_client
 from .partitioned import MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, part_marginals
 from .wheel_path import wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
+
+if TYPE_CHECKING:
+    from ..registration.readings import PrismReadings
 
 DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
@@ -222,15 +225,53 @@ class _State:
                    gtsam.utilities.extractVectors(values, "e"), gtsam.utilities.extractVectors(values, "t"))
 
 
-class _Builder:
-    """Adds every factor of a problem to a graph, given keyframes and the initial estimate."""
+@dataclass(frozen=True)
+class _Keyframes:
+    """The keyframes of a solve: IMU sample indices ``idx`` (K,), times ``t_s`` (K,) [s], ``static``
+    (K,) bool (inside a static interval, with ZUPT on), and of each keyframe its IMU bias segment
+    ``bias_seg`` (K,) and odometer scale segment ``scale_seg`` (K,) (None: no scale states)."""
 
-    def __init__(self, problem: FusionProblem, t_key: np.ndarray, key_idx: np.ndarray, pims, static: np.ndarray,
-                 pos0: np.ndarray, R0: np.ndarray, vel0: np.ndarray, alignment: Alignment, seg: np.ndarray | None,
-                 bias_seg: np.ndarray):
-        self.pb, self.t, self.idx, self.pims, self.static = problem, t_key, key_idx, pims, static
-        self.pos0, self.R0, self.vel0, self.alignment, self.seg = pos0, R0, vel0, alignment, seg
-        self.bias_seg = bias_seg
+    idx: np.ndarray
+    t_s: np.ndarray
+    static: np.ndarray
+    bias_seg: np.ndarray
+    scale_seg: np.ndarray | None
+
+    @property
+    def with_scale(self) -> bool:
+        return self.scale_seg is not None
+
+
+def _keyframe_layout(problem: FusionProblem, key_idx: np.ndarray) -> _Keyframes:
+    """The :class:`_Keyframes` of ``problem`` at the IMU samples ``key_idx`` (K,)."""
+    fs = problem.factors
+    t_key = problem.imu.t_s[key_idx]
+    static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
+    with_scale = problem.odometer is not None and fs.odometer.enabled
+    seg = (np.floor((t_key - t_key[0]) / fs.odometer.scale_segment_s).astype(np.int64) if with_scale else None)
+    # bias segment of each interval (the last keyframe belongs to the last interval's)
+    bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
+    bias_seg[-1] = bias_seg[-2]
+    return _Keyframes(key_idx, t_key, static, bias_seg, seg)
+
+
+@dataclass(frozen=True)
+class _Initial:
+    """The initial estimate at the keyframes: ``R_nb`` (K,3,3), ``pos_n`` (K,3) [m], ``vel_n`` (K,3) [m/s]."""
+
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+
+
+class _Builder:
+    """Adds every factor of a problem to a graph, given keyframes, the IMU preintegrated between
+    them (``pims``, K-1) and the initial estimate."""
+
+    def __init__(self, problem: FusionProblem, kf: _Keyframes, pims, initial: _Initial, alignment: Alignment):
+        self.pb, self.kf, self.t, self.idx, self.pims, self.static = problem, kf, kf.t_s, kf.idx, pims, kf.static
+        self.pos0, self.R0, self.vel0, self.alignment = initial.pos_n, initial.R_nb, initial.vel_n, alignment
+        self.seg, self.bias_seg = kf.scale_seg, kf.bias_seg
         self.g = gtsam.NonlinearFactorGraph()
         self.builders: list = []
         self.counts: dict[str, int] = {}
@@ -239,6 +280,16 @@ class _Builder:
 
     def _count(self, name: str, n: int) -> None:
         self.counts[name] = self.counts.get(name, 0) + int(n)
+
+    def snapshot(self) -> tuple:
+        """The factors so far (the graph itself, copies of the rest), for :meth:`restart`."""
+        return self.g, list(self.builders), dict(self.counts), self.soft.copy()
+
+    def restart(self, base: tuple) -> None:
+        """Back to the factors of ``base`` (:meth:`snapshot`), on a copy of its graph."""
+        graph, builders, counts, soft = base
+        self.g, self.counts, self.builders, self.soft = (gtsam.NonlinearFactorGraph(graph), dict(counts),
+                                                         list(builders), soft.copy())
 
     def imu(self) -> None:
         for k, pim in enumerate(self.pims):
@@ -380,12 +431,12 @@ class _Builder:
         ones = np.ones((used.size, 3))
         lever = pr.lever_arm_b
         group = kk * len(pr.station_ids) + sid  # readings sharing their keys: one factor
+        obs = fx.PrismObservations(lever, dt, t_imu, y, from_station)
 
         def build(state: _State) -> fx.LinearBlocks:
             R = state.R[kk]
             w_nb_b = w_ib_b - np.einsum("kji,j->ki", R, omega_ie_n)
-            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, lever, dt, t_imu, state.ts[sid], y,
-                                     from_station)
+            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, state.ts[sid], obs)
             return fx.LinearBlocks(keys, J, r, ones, st.huber_k, W, group)
 
         self.builders.append(("prism", build))
@@ -594,12 +645,21 @@ class _Solved:
     gfg: gtsam.GaussianFactorGraph | None = None
 
 
-def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iterations: int, rtol: float,
-                 say: Callable[[str], None], step_tol_m: float = 0.0, previous: _Solved | None = None,
-                 partition: "Partition | None" = None) -> _Solved:
-    """Gauss-Newton with step halving (see :class:`_Solved`). Stops when the cost falls by less
-    than ``rtol`` (relative) or the predicted remaining correction is below ``step_tol_m``
-    (fusion/convergence.py). ``previous``: the solve of the same graph that ended at ``values``
+@dataclass(frozen=True)
+class StopRule:
+    """When :func:`gauss_newton` stops: after ``max_iterations``, when the cost falls by less than
+    ``rtol`` (relative), or when the predicted remaining correction is below ``step_tol_m`` [m]
+    (0: off; fusion/convergence.py)."""
+
+    max_iterations: int
+    rtol: float
+    step_tol_m: float = 0.0
+
+
+def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRule, say: Callable[[str], None],
+                 previous: _Solved | None = None, partition: "Partition | None" = None) -> _Solved:
+    """Gauss-Newton with step halving (see :class:`_Solved`), until ``stop`` (:class:`StopRule`).
+    ``previous``: the solve of the same graph that ended at ``values``
     (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
     and when its steps have converged already its tree is returned without a new iteration.
     ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
@@ -611,10 +671,10 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
     tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, None)
     gfg = previous.gfg if previous is not None else None
     history = previous.history.copy() if previous is not None else StepHistory()
-    if history.converged(step_tol_m):
+    if history.converged(stop.step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history, gfg)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
-    for it in range(1, max_iterations + 1):
+    for it in range(1, stop.max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state, blocks)
         blocks = None
         if solver is not None:
@@ -640,7 +700,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, max_iteratio
         history.add(state.p, new_state.p)
         values, cost, state, blocks = new, new_cost, new_state, new_blocks
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
-        if decrease < rtol or history.converged(step_tol_m):
+        if decrease < stop.rtol or history.converged(stop.step_tol_m):
             break
     return _Solved(values, state, it, cost0, cost, tree, ordering, history, gfg)
 
@@ -711,9 +771,10 @@ def _marginal_graph(G: _Graph, values: gtsam.Values, with_scale: bool, soft: _So
     return gfg
 
 
-def _past_graph(gfg: gtsam.GaussianFactorGraph, k: int, t_key: np.ndarray, bias_seg: np.ndarray,
-                seg: np.ndarray | None, gnss_t_s: np.ndarray | None) -> gtsam.GaussianFactorGraph:
+def _past_graph(gfg: gtsam.GaussianFactorGraph, k: int, kf: _Keyframes,
+                gnss_t_s: np.ndarray | None) -> gtsam.GaussianFactorGraph:
     """The factors of ``gfg`` that involve only states up to keyframe ``k`` (the data before it)."""
+    t_key, bias_seg, seg = kf.t_s, kf.bias_seg, kf.scale_seg
     last = {ord("x"): k, ord("v"): k, ord("b"): int(bias_seg[k]), ord("s"): int(seg[k]) if seg is not None else -1}
     past = gtsam.GaussianFactorGraph()
     for i in range(gfg.size()):
@@ -746,9 +807,11 @@ def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -
     return R_inv @ R_inv.T
 
 
-def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale: bool, t_key: np.ndarray,
-               k: int, bias_seg: np.ndarray, seg: np.ndarray | None, gnss, used: np.ndarray) -> HandOver:
-    """The state at keyframe ``k`` and its marginal covariances (see :class:`HandOver`)."""
+def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, kf: _Keyframes, k: int, gnss,
+               used: np.ndarray) -> HandOver:
+    """The state at keyframe ``k`` and its marginal covariances (see :class:`HandOver`); ``gnss``
+    the fixes (None: GNSS off) of which ``used`` were used."""
+    with_scale, t_key, bias_seg, seg = kf.with_scale, kf.t_s, kf.bias_seg, kf.scale_seg
     state = _State.of(values, with_scale)
     bias = values.atConstantBias(B(int(bias_seg[k]))).vector()
     keys = [X(k), V(k)]
@@ -763,7 +826,7 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, with_scale:
     keys.append(B(int(bias_seg[k])))
     if with_scale:
         keys.append(S(int(seg[k])))
-    past = _past_graph(gfg, k, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None)
+    past = _past_graph(gfg, k, kf, gnss.t_s if gnss is not None else None)
     cov = joint_marginal_covariance(past, keys)
     var = np.diag(cov)
     return HandOver(k, float(t_key[k]), state.R[k].copy(), state.p[k].copy(), state.v[k].copy(), bias,
@@ -822,180 +885,314 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     if imu.t_s.size < 10:
         raise FusionError("the IMU log holds fewer than 10 samples")
     gnss = problem.gnss if fs.gnss.enabled else None
-    key_idx = _keyframes(problem)
-    t_key = imu.t_s[key_idx]
-    static = static_mask(t_key, problem.static_intervals_s) if fs.zupt.enabled else np.zeros(t_key.size, bool)
+    kf = _keyframe_layout(problem, _keyframes(problem))
     init_problem = _with_prism_fixes(problem) if gnss is None and problem.prisms is not None else problem
     alignment = join.alignment if join is not None else _alignment(init_problem)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if fs.imu.earth_rate else np.zeros(3)
-    given = preintegrated is not None
-    if not given:
-        say(f"preintegrating {imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
-        preintegrated = preintegrate_problem(problem)
-    elif not np.array_equal(preintegrated.key_idx, key_idx):
-        raise ValueError("smooth: the given preintegration is of other keyframes")
-    pims, params = preintegrated.pims, preintegrated.params
+    preintegrated, given = _preintegration(problem, kf.idx, preintegrated, say)
     timings["preintegrate_s"] = time.perf_counter() - tic + (preintegrated.wall_s if given else 0.0)
 
     tic = time.perf_counter()
+    initial = _initial_estimate(problem, init_problem, kf, preintegrated, alignment, join, omega_ie_n)
+    b = _Builder(problem, kf, preintegrated.pims, initial, alignment)
+    b.join = join
+    values = _initial_values(kf, initial, join)
+    gates = _Gates.start(problem, kf.t_s)
+    _add_base_factors(b, gates.gnss is not None or gates.prisms is not None, omega_ie_n)
+    timings["build_s"] = time.perf_counter() - tic
+
+    tic = time.perf_counter()
+    partition = _partition(problem, kf)
+    components = _noise_components(problem, chunked=join is not None or hand_over_t_s is not None)
+    rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say)
+    timings["solve_s"] = time.perf_counter() - tic
+    noise = gates.final_noise(say)
+    components_json = _components_json(components, fs, say)
+    sol = rounds.sol
+    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
+    biases = np.array([sol.values.atConstantBias(B(m)).vector()
+                       for m in range(int(kf.bias_seg[-1]) + 1)])[kf.bias_seg]
+    if on_solved is not None:
+        on_solved(kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
+
+    tic = time.perf_counter()
+    (sig_t, sig_pos, sig_att), hand_over = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
+    timings["marginals_s"] = time.perf_counter() - tic
+    scale = state.s[kf.scale_seg] if kf.with_scale else None
+    return SmootherResult(kf.t_s, kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
+                          sig_t, sig_pos, sig_att, alignment, rounds.iterations, float(rounds.initial_cost),
+                          float(sol.cost), dict(b.counts), sorted(gates.rejected, key=lambda r: r["t_s"]), timings,
+                          station_states=None if gates.prisms is None else state.ts,
+                          station_cov=_station_covariance(gates.prisms, sol.tree),
+                          rejected_prism=sorted(gates.rejected_prism, key=lambda r: (r["t_s"], r["station"])),
+                          hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
+
+
+def _preintegration(problem: FusionProblem, key_idx: np.ndarray, preintegrated: "Preintegrated | None",
+                    say: Callable[[str], None]) -> tuple["Preintegrated", bool]:
+    """The IMU preintegrated between the keyframes ``key_idx`` (K,): ``preintegrated`` when given
+    (checked to be of these keyframes), else done here; and whether it was given."""
+    given = preintegrated is not None
+    if not given:
+        say(f"preintegrating {problem.imu.t_s.size} IMU samples into {key_idx.size - 1} intervals")
+        preintegrated = preintegrate_problem(problem)
+    elif not np.array_equal(preintegrated.key_idx, key_idx):
+        raise ValueError("smooth: the given preintegration is of other keyframes")
+    return preintegrated, given
+
+
+def _initial_estimate(problem: FusionProblem, init_problem: FusionProblem, kf: _Keyframes,
+                      preintegrated: "Preintegrated", alignment: Alignment, join: HandOver | None,
+                      omega_ie_n: np.ndarray) -> _Initial:
+    """The initial estimate at the keyframes: attitudes chained through the preintegrated
+    rotations from the alignment (or the hand-over ``join``), positions and velocities from
+    :func:`initial_states` on ``init_problem`` (the problem with its prism readings as fixes when
+    it has no GNSS). With ``factors.imu.gravity_per_position``, sets each interval's gravity in
+    the preintegration's parameters at these positions. omega_ie_n (3,) [rad/s]."""
+    gnss = problem.gnss if problem.factors.gnss.enabled else None
+    pims, params, t_key = preintegrated.pims, preintegrated.params, kf.t_s
     R0 = _chain_rotations(join.R_nb if join is not None else alignment.R_nb, pims, np.diff(t_key), omega_ie_n)
     if alignment.epoch == "end":  # aligned on the static period at the end: chain back to the start
         R0 = _chain_rotations(back_to_start(R0, alignment.R_nb, omega_ie_n, t_key[-1] - t_key[0]), pims,
                               np.diff(t_key), omega_ie_n)
     pos0, vel0 = initial_states(init_problem if gnss is not None or problem.prisms is not None
-                                else _without_gnss(problem), t_key, R0, static,
+                                else _without_gnss(problem), t_key, R0, kf.static,
                                 PRISM_INIT_MEDIAN if gnss is None and problem.prisms is not None else 0)
     if join is not None and gnss is None and problem.prisms is None:
         pos0 += join.pos_n - pos0[0]
-    if fs.imu.gravity_per_position:
+    if problem.factors.imu.gravity_per_position:
         # the parameters are shared with the preintegrated measurements: set each interval's gravity
         g_n = geodesy.gravity_n(pos0, problem.origin)
         for k, p in enumerate(params):
             p.n_gravity = g_n[k]
-    with_scale = problem.odometer is not None and fs.odometer.enabled
-    seg = (np.floor((t_key - t_key[0]) / fs.odometer.scale_segment_s).astype(np.int64) if with_scale else None)
-    # bias segment of each interval (the last keyframe belongs to the last interval's)
-    bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
-    bias_seg[-1] = bias_seg[-2]
-    b = _Builder(problem, t_key, key_idx, pims, static, pos0, R0, vel0, alignment, seg, bias_seg)
-    b.join = join
+    return _Initial(R0, pos0, vel0)
+
+
+def _initial_values(kf: _Keyframes, initial: _Initial, join: HandOver | None) -> gtsam.Values:
+    """The initial estimate as GTSAM values: poses, velocities, zero biases and scale errors; the
+    first keyframe's at the hand-over ``join`` (if any)."""
     values = gtsam.Values()
-    for k in range(t_key.size):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(R0[k]), pos0[k]))
-        values.insert(V(k), vel0[k])
-    for m in range(int(bias_seg[-1]) + 1):
+    for k in range(kf.t_s.size):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(initial.R_nb[k]), initial.pos_n[k]))
+        values.insert(V(k), initial.vel_n[k])
+    for m in range(int(kf.bias_seg[-1]) + 1):
         values.insert(B(m), gtsam.imuBias.ConstantBias())
-    if with_scale:
-        for m in range(int(seg[-1]) + 1):
+    if kf.with_scale:
+        for m in range(int(kf.scale_seg[-1]) + 1):
             values.insert(S(m), np.zeros(1))
     if join is not None:
         values.update(X(0), gtsam.Pose3(gtsam.Rot3(join.R_nb), join.pos_n))
         values.update(V(0), join.vel_n)
         values.update(B(0), gtsam.imuBias.ConstantBias(join.bias[:3], join.bias[3:]))
-        if with_scale and join.scale is not None:
+        if kf.with_scale and join.scale is not None:
             values.update(S(0), np.array([join.scale]))
+    return values
+
+
+def _add_base_factors(b: _Builder, absolute: bool, omega_ie_n: np.ndarray) -> None:
+    """Every factor but the gated ones (GNSS, prisms): IMU, the first keyframe's anchor (with
+    ``absolute``: GNSS or prisms fix yaw and position) or hand-over priors, and each switched-on
+    factor the problem has the data for. omega_ie_n (3,) [rad/s]."""
+    problem, fs = b.pb, b.pb.factors
     b.imu()
-    prisms = problem.prisms if fs.total_stations.enabled else None
-    if join is not None:
+    if b.join is not None:
         b.join_priors()
     else:
-        b.anchor(absolute=gnss is not None or prisms is not None)
+        b.anchor(absolute=absolute)
     if fs.zupt.enabled:
         b.zupt()
     if fs.nhc.enabled:
         b.nhc()
-    if with_scale:
+    if b.kf.with_scale:
         b.odometer()
     if fs.wheel_path.enabled and problem.odometer is not None:
         b.wheel_path(omega_ie_n)
     if problem.inclinometer is not None and fs.inclinometer.enabled:
         b.inclinometer()
-    base_graph, base_builders, base_counts, base_soft = b.g, list(b.builders), dict(b.counts), b.soft.copy()
-    timings["build_s"] = time.perf_counter() - tic
 
-    used = np.zeros(0, np.int64)
-    if gnss is not None:
-        ok = (gnss.t_s >= t_key[0]) & (gnss.t_s <= t_key[-1])
-        if not fs.gnss.accept_float:
-            ok &= gnss.fix_quality != 5
-        used = np.flatnonzero(ok)
-    rejected: list[dict] = []
-    # readings the step check flagged as mis-locks before the fusion are rejected from the start
-    prism_used, rejected_prism = prefused_rejections(prisms) if prisms is not None else (None, [])
-    tic = time.perf_counter()
-    iterations = 0
-    cost0 = None
-    gating = gnss is not None or prisms is not None
-    rtol = problem.smoother.relative_tolerance
-    step_tol = problem.smoother.step_tolerance_mm * 1e-3  # m; 0: off
-    partition = _partition(problem, t_key, bias_seg, seg)
-    white_factor, noise = np.ones(2), None  # the GNSS white-noise variance factors applied, their estimate
-    # a run in chunks keeps the configured noise (a chunk's own estimate would break the hand-over's
-    # continuity with its neighbours); fusion/noise_components.py
-    chunked = join is not None or hand_over_t_s is not None
-    components = None
-    if problem.factors.noise_estimation.enabled and not chunked:
-        components = nc.NoiseComponents(quanta_m={"odometer": odometer_quantum_m(problem.odometer)} if with_scale else {})
-    for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
-        graph = gtsam.NonlinearFactorGraph(base_graph)
-        b.g, b.counts, b.builders, b.soft = graph, dict(base_counts), list(base_builders), base_soft.copy()
-        solved_factor = white_factor  # what this round's solve uses
-        gnss_build = b.gnss(used, values, white_factor) if gnss is not None and used.size else None
-        prism_build = b.prisms(prism_used, values) if prisms is not None else None
-        if components is not None:  # the groups' estimated noise (fusion/noise_components.py)
-            b.builders = components.wrap(b.builders, _component_labels(prisms, prism_used))
-            prism_build = dict(b.builders).get("prism", prism_build)
-        G = _Graph(graph, b.builders, b.counts, gnss_build)
-        say(f"solving: {t_key.size} keyframes, {sum(b.counts.values())} factors"
-            + (f" (gating round {round_ + 1})" if gating else ""))
-        # a gating round need not converge to the last digit before its gate: the tolerance is
-        # tightened once the gate rejects nothing more (below)
-        sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations,
-                           max(rtol, GATE_RELATIVE_TOLERANCE) if gating else rtol, say, step_tol,
-                           partition=partition)
-        values, iterations = sol.values, iterations + sol.iterations
-        cost0 = sol.initial_cost if cost0 is None else cost0
+
+@dataclass
+class _Gates:
+    """What the gating rounds of :func:`smooth` carry from one round to the next: the GNSS fixes
+    ``gnss`` (None: GNSS off), the indices ``used`` of those used and the rejected ones; the prism
+    readings ``prisms`` (None: no total stations), the indices ``prism_used`` of those used and the
+    rejected ones; the GNSS white-noise variance factors applied (horizontal, vertical;
+    fusion/gnss_noise.py), the round's solve's ``solved_factor``, and their estimate ``noise``."""
+
+    gnss: GnssFixes | None
+    used: np.ndarray
+    rejected: list[dict]
+    prisms: "PrismReadings | None"
+    prism_used: np.ndarray | None
+    rejected_prism: list[dict]
+    white_factor: np.ndarray = field(default_factory=lambda: np.ones(2))
+    solved_factor: np.ndarray | None = None
+    noise: "gnss_noise.GnssNoiseEstimate | None" = None
+
+    @classmethod
+    def start(cls, problem: FusionProblem, t_key: np.ndarray) -> "_Gates":
+        """Before the first round: the fixes within the keyframes (t_key (K,) [s]) of an accepted
+        quality; the prism readings not flagged as mis-locks."""
+        fs = problem.factors
+        gnss = problem.gnss if fs.gnss.enabled else None
+        prisms = problem.prisms if fs.total_stations.enabled else None
+        used = np.zeros(0, np.int64)
+        if gnss is not None:
+            ok = (gnss.t_s >= t_key[0]) & (gnss.t_s <= t_key[-1])
+            if not fs.gnss.accept_float:
+                ok &= gnss.fix_quality != 5
+            used = np.flatnonzero(ok)
+        # readings the step check flagged as mis-locks before the fusion are rejected from the start
+        prism_used, rejected_prism = prefused_rejections(prisms) if prisms is not None else (None, [])
+        return cls(gnss, used, [], prisms, prism_used, rejected_prism)
+
+    @property
+    def gating(self) -> bool:
+        return self.gnss is not None or self.prisms is not None
+
+    def labels(self) -> dict[str, np.ndarray]:
+        return _component_labels(self.prisms, self.prism_used)
+
+    def gate(self, prism_build, gnss_build, sol: "_Solved", b: _Builder, values: gtsam.Values) -> bool:
+        """Gate the prism readings (mis-lock runs) and GNSS fixes at the solve ``sol``, with the
+        builders of their factors (None: none); rejected fixes lose their error state in
+        ``values``. Whether any was rejected (or the GNSS noise needs a refit)."""
+        fs = b.pb.factors
         newly_rejected = False
         if prism_build is not None:  # total stations: gate, mis-lock runs
-            prism_used, newly = gate_prisms(prism_build(sol.state), prism_used, prisms, fs.total_stations)
-            rejected_prism += newly
+            self.prism_used, newly = gate_prisms(prism_build(sol.state), self.prism_used, self.prisms,
+                                                 fs.total_stations)
+            self.rejected_prism += newly
             newly_rejected = bool(newly)
         if gnss_build is not None:
-            blocks = gnss_build(sol.state)
-            if fs.gnss.estimate_white_noise:  # the gate on the noise the residuals show
-                noise = gnss_noise.estimate_white_noise(blocks, b.gnss_white(used), white_factor, sol.tree,
-                                                        fs.gnss.gate_chi2) or noise
-                if noise is not None and gnss_noise.needs_refit(white_factor, noise.applied):
-                    white_factor, newly_rejected = noise.applied, True
-            nis = gnss_noise.nis(blocks.residual, gnss_noise.scaled_white(b.gnss_white(used), white_factor))
-            bad = nis > fs.gnss.gate_chi2
-            for i, q in zip(used[bad], nis[bad]):
-                rejected.append({"t_s": float(gnss.t_s[i]), "index": int(i), "nis": float(q)})
-                if values.exists(E(int(i))):
-                    values.erase(E(int(i)))
-            used = used[~bad]
-            newly_rejected |= bool(np.any(bad))
-        if components is not None and not newly_rejected:
-            newly_rejected = _estimate_components(components, G, sol, _component_labels(prisms, prism_used))
-        if not newly_rejected:
-            if gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
-                sol = gauss_newton(G, values, with_scale, problem.smoother.max_iterations, rtol, say, step_tol, sol,
-                                   partition)
-                values, iterations = sol.values, iterations + sol.iterations
-            break
-    timings["solve_s"] = time.perf_counter() - tic
-    if noise is not None:  # the factor of the last solve (a refit the rounds ran out for is not applied)
-        noise = replace(noise, applied=solved_factor)
-        say(noise.summary())
-    components_json = None
-    if components is not None and components.estimates:
-        components_json = nc.components_json(components, fs)
-        for line in nc.summary_lines(components, fs):
-            say(line)
-    state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
-    biases = np.array([values.atConstantBias(B(m)).vector() for m in range(int(bias_seg[-1]) + 1)])[bias_seg]
-    if on_solved is not None:
-        on_solved(key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
+            newly_rejected |= self._gate_gnss(gnss_build(sol.state), sol, b.gnss_white(self.used), values, fs.gnss)
+        return newly_rejected
 
-    tic = time.perf_counter()
+    def _gate_gnss(self, blocks: fx.LinearBlocks, sol: "_Solved", white: np.ndarray, values: gtsam.Values,
+                   st) -> bool:
+        """The GNSS gate on the position factors' ``blocks`` at ``sol``, the used fixes' stated white
+        covariances ``white`` (F,3,3) [m^2] and the settings ``st`` (``factors.gnss``); with
+        ``estimate_white_noise``, on the noise the residuals show."""
+        refit = False
+        if st.estimate_white_noise:
+            self.noise = gnss_noise.estimate_white_noise(blocks, white, self.white_factor, sol.tree,
+                                                         st.gate_chi2) or self.noise
+            if self.noise is not None and gnss_noise.needs_refit(self.white_factor, self.noise.applied):
+                self.white_factor, refit = self.noise.applied, True
+        nis = gnss_noise.nis(blocks.residual, gnss_noise.scaled_white(white, self.white_factor))
+        bad = nis > st.gate_chi2
+        for i, q in zip(self.used[bad], nis[bad]):
+            self.rejected.append({"t_s": float(self.gnss.t_s[i]), "index": int(i), "nis": float(q)})
+            if values.exists(E(int(i))):
+                values.erase(E(int(i)))
+        self.used = self.used[~bad]
+        return refit | bool(np.any(bad))
+
+    def final_noise(self, say: Callable[[str], None]) -> "gnss_noise.GnssNoiseEstimate | None":
+        """The GNSS white-noise estimate with the factor of the last solve (a refit the rounds ran
+        out for is not applied), said; None when not estimated."""
+        if self.noise is None:
+            return None
+        noise = replace(self.noise, applied=self.solved_factor)
+        say(noise.summary())
+        return noise
+
+
+@dataclass
+class _Rounds:
+    """What :func:`_solve_in_rounds` returns: the last solve ``sol`` and its graph ``G``, the
+    iterations of every round, and the first round's initial cost."""
+
+    sol: "_Solved"
+    G: _Graph
+    iterations: int
+    initial_cost: float
+
+
+def _round_graph(b: _Builder, base: tuple, values: gtsam.Values, gates: _Gates,
+                 components: "nc.NoiseComponents | None") -> tuple[_Graph, Callable | None, Callable | None]:
+    """One gating round's graph: the base factors (``b.snapshot()``), the used GNSS fixes' and
+    prism readings' factors (their states inserted into ``values``), the estimated groups' noise.
+    Returns the graph and the builders of the GNSS and prism factors (None: none)."""
+    b.restart(base)
+    gates.solved_factor = gates.white_factor  # what this round's solve uses
+    gnss_build = b.gnss(gates.used, values, gates.white_factor) if gates.gnss is not None and gates.used.size else None
+    prism_build = b.prisms(gates.prism_used, values) if gates.prisms is not None else None
+    if components is not None:  # the groups' estimated noise (fusion/noise_components.py)
+        b.builders = components.wrap(b.builders, gates.labels())
+        prism_build = dict(b.builders).get("prism", prism_build)
+    return _Graph(b.g, b.builders, b.counts, gnss_build), gnss_build, prism_build
+
+
+def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, gates: _Gates,
+                     partition: Partition | None, components: "nc.NoiseComponents | None",
+                     say: Callable[[str], None]) -> _Rounds:
+    """Solve, gate the GNSS fixes and prism readings (``gates``) and estimate the noise
+    ``components``, and again, until a round rejects nothing (at most 4 rounds, and the noise
+    refits); that round then converges to the configured tolerance."""
+    base = b.snapshot()
+    sm = problem.smoother
+    stop = StopRule(sm.max_iterations, sm.relative_tolerance, sm.step_tolerance_mm * 1e-3)  # step: m; 0: off
+    # a gating round need not converge to the last digit before its gate: the tolerance is
+    # tightened once the gate rejects nothing more (below)
+    round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE)) if gates.gating else stop
+    iterations, cost0 = 0, None
+    for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
+        G, gnss_build, prism_build = _round_graph(b, base, values, gates, components)
+        say(f"solving: {b.t.size} keyframes, {sum(b.counts.values())} factors"
+            + (f" (gating round {round_ + 1})" if gates.gating else ""))
+        sol = gauss_newton(G, values, b.kf.with_scale, round_stop, say, partition=partition)
+        values, iterations = sol.values, iterations + sol.iterations
+        cost0 = sol.initial_cost if cost0 is None else cost0
+        newly_rejected = gates.gate(prism_build, gnss_build, sol, b, values)
+        if components is not None and not newly_rejected:
+            newly_rejected = _estimate_components(components, G, sol, gates.labels())
+        if not newly_rejected:
+            if gates.gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
+                sol = gauss_newton(G, values, b.kf.with_scale, stop, say, sol, partition)
+                iterations += sol.iterations
+            break
+    return _Rounds(sol, G, iterations, cost0)
+
+
+def _components_json(components: "nc.NoiseComponents | None", fs, say: Callable[[str], None]) -> dict | None:
+    """The estimated groups' noise for metrics.json (fusion/noise_components.py), said; None
+    when not estimated."""
+    if components is None or not components.estimates:
+        return None
+    components_json = nc.components_json(components, fs)
+    for line in nc.summary_lines(components, fs):
+        say(line)
+    return components_json
+
+
+def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", partition: Partition | None,
+               kf: _Keyframes, hand_over_t_s: float | None, gates: _Gates
+               ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], HandOver | None]:
+    """The sigmas of :func:`_marginal_sigmas` at the solve, and the :class:`HandOver` at the
+    keyframe nearest to ``hand_over_t_s`` (None: none)."""
+    sol = rounds.sol
+    values = sol.values
     # the solve's last linearisation serves the marginals (at most one converged step before the
     # estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
-    gfg = _marginal_graph(G, values, with_scale, b.soft) if b.soft.keys or hand_over_t_s is not None else None
-    tree = _sigma_marginals(problem, sol, gfg if b.soft.keys else None, partition, t_key, bias_seg, seg)
-    sig_t, sig_pos, sig_att = _marginal_sigmas(tree, state, t_key, problem.smoother.marginal_step_s)
+    gfg = _marginal_graph(rounds.G, values, kf.with_scale, soft) if soft.keys or hand_over_t_s is not None else None
+    tree = _sigma_marginals(problem, sol, gfg if soft.keys else None, partition, kf)
+    sigmas = _marginal_sigmas(tree, sol.state, kf.t_s, problem.smoother.marginal_step_s)
     hand_over = None
     if hand_over_t_s is not None:
-        k = int(nearest_sample(t_key, np.array([hand_over_t_s]))[0])
-        hand_over = _hand_over(gfg, values, with_scale, t_key, k, bias_seg, seg, gnss, used)
-    timings["marginals_s"] = time.perf_counter() - tic
-    scale = state.s[seg] if with_scale else None
-    return SmootherResult(t_key, key_idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
-                          sig_t, sig_pos, sig_att, alignment, iterations, float(cost0), float(sol.cost),
-                          dict(b.counts), sorted(rejected, key=lambda r: r["t_s"]), timings,
-                          station_states=None if prisms is None else state.ts,
-                          station_cov=_station_covariance(prisms, sol.tree),
-                          rejected_prism=sorted(rejected_prism, key=lambda r: (r["t_s"], r["station"])),
-                          hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
+        k = int(nearest_sample(kf.t_s, np.array([hand_over_t_s]))[0])
+        hand_over = _hand_over(gfg, values, kf, k, gates.gnss, gates.used)
+    return sigmas, hand_over
+
+
+def _noise_components(problem: FusionProblem, chunked: bool) -> "nc.NoiseComponents | None":
+    """The groups' noise estimation of a solve (fusion/noise_components.py; None: off), the
+    odometer's tick length from its log as its quantum. A run in chunks keeps the configured
+    noise (a chunk's own estimate would break the hand-over's continuity with its neighbours)."""
+    if not problem.factors.noise_estimation.enabled or chunked:
+        return None
+    odometer = problem.odometer if problem.factors.odometer.enabled else None
+    return nc.NoiseComponents(quanta_m={"odometer": odometer_quantum_m(odometer)} if odometer is not None else {})
 
 
 def _component_labels(prisms, prism_used: np.ndarray | None) -> dict[str, np.ndarray]:
@@ -1018,30 +1215,29 @@ def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Sol
 
 
 def _sigma_marginals(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
-                     partition: Partition | None, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None):
+                     partition: Partition | None, kf: _Keyframes):
     """The marginals behind the sigma columns, exact on a run of any length: of ``gfg`` (a
     chunk's own marginal graph) or else of the solve's last linearisation, in parts of at most
     :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole hour's Bayes tree
     drifts). The solve's own tree when it is that already: a run no longer than one such part,
     or one solved in parts no longer."""
-    parts = _partition(problem, t_key, bias_seg, seg, MARGINAL_PART_S)
+    parts = _partition(problem, kf, MARGINAL_PART_S)
     if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
         return sol.tree
     return _eliminate(gfg) if parts.count == 1 else part_marginals(parts, gfg if gfg is not None else sol.gfg)
 
 
-def _partition(problem: FusionProblem, t_key: np.ndarray, bias_seg: np.ndarray, seg: np.ndarray | None,
-               part_s: float | None = None) -> Partition | None:
-    """The time parts of ``part_s`` (default ``smoother.part_s``; fusion/partitioned.py), or
-    None: one batch."""
+def _partition(problem: FusionProblem, kf: _Keyframes, part_s: float | None = None) -> Partition | None:
+    """The time parts of ``part_s`` (default ``smoother.part_s``; fusion/partitioned.py) of the
+    keyframes ``kf``, or None: one batch."""
     part_s = part_s or problem.smoother.part_s
     if part_s is None:
         return None
-    cuts = cut_times(float(t_key[0]), float(t_key[-1]), part_s)
+    cuts = cut_times(float(kf.t_s[0]), float(kf.t_s[-1]), part_s)
     if problem.smoother.engine == "dask":  # an unreachable scheduler is refused before the solve
         dask_client(problem.smoother.address, problem.smoother.workers or 1)
     gnss = problem.gnss if problem.factors.gnss.enabled else None
-    return Partition(cuts, t_key, bias_seg, seg, gnss.t_s if gnss is not None else None,
+    return Partition(cuts, kf.t_s, kf.bias_seg, kf.scale_seg, gnss.t_s if gnss is not None else None,
                      problem.smoother.workers or 1, problem.smoother.engine, problem.smoother.address)
 
 

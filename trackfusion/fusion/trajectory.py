@@ -10,10 +10,11 @@ integrated at once (one numpy step per sample offset, not per sample).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..geodesy import Origin, gravity_n
 from ..rotations import skew, so3_exp, so3_exp_rotate, so3_log
 from ..sensors.types import ImuData
 from .preintegration import sculling_compensated
@@ -38,6 +39,34 @@ class DenseTrajectory:
         return DenseTrajectory(self.t_s[sel], self.R_nb[sel], self.pos_n[sel], self.vel_n[sel])
 
 
+@dataclass(frozen=True)
+class KeyframeStates:
+    """The smoothed states :func:`densify` blends between: keyframe IMU sample indices ``key_idx``
+    (K,); at each keyframe ``R_nb`` (K,3,3), ``pos_n`` (K,3) [m], ``vel_n`` (K,3) [m/s], ``gyro_bias``
+    (K,3) [rad/s], ``accel_bias`` (K,3) [m/s^2] and ``gravity_n`` (K,3) [m/s^2]."""
+
+    key_idx: np.ndarray
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gravity_n: np.ndarray
+
+    @classmethod
+    def of(cls, result, origin: Origin, sel=slice(None)) -> "KeyframeStates":
+        """The keyframes ``sel`` (a slice or an index array) of a smoothed
+        :class:`~.smoother.SmootherResult` ``result``, with normal gravity at their positions
+        (``origin`` the origin of ``n``)."""
+        pos_n = result.pos_n[sel]
+        return cls(result.key_idx[sel], result.R_nb[sel], pos_n, result.vel_n[sel], result.gyro_bias_radps[sel],
+                   result.accel_bias_mps2[sel], gravity_n(pos_n, origin))
+
+    def select(self, sel) -> "KeyframeStates":
+        """The keyframes ``sel`` (a slice or an index array over the K keyframes)."""
+        return KeyframeStates(*(getattr(self, f.name)[sel] for f in fields(self)))
+
+
 def _padded(key_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Sample index (K-1, m) of offset j=1..m in each interval, the valid mask, and m."""
     lengths = np.diff(key_idx)
@@ -48,33 +77,32 @@ def _padded(key_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     return np.where(valid, idx, key_idx[1:, None]), valid, m
 
 
-def densify(imu: ImuData, key_idx: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray,
-            gyro_bias: np.ndarray, accel_bias: np.ndarray, gravity_n: np.ndarray,
-            omega_ie_n: np.ndarray, block: int = 2000, every: int = 1, index_offset: int = 0) -> DenseTrajectory:
+def densify(imu: ImuData, keys: KeyframeStates, omega_ie_n: np.ndarray, block: int = 2000, every: int = 1,
+            index_offset: int = 0) -> DenseTrajectory:
     """Blend forward and backward integration between keyframes.
 
-    key_idx (K,) keyframe sample indices; R_nb (K,3,3), pos_n, vel_n, gyro_bias [rad/s],
-    accel_bias [m/s^2], gravity_n [m/s^2] each (K,3) at the keyframes; omega_ie_n (3,) [rad/s].
+    keys: the states at the keyframes (:class:`KeyframeStates`); omega_ie_n (3,) [rad/s].
     Returns the states at every IMU sample from ``key_idx[0]`` to ``key_idx[-1]``, or with
     ``every`` > 1 only at the samples i with ``(index_offset + i) % every == 0`` (the same
     values: the integration still steps through every sample); works on ``block`` intervals
     at a time to bound memory.
     """
     dt, f_all = sculling_compensated(imu)
+    key_idx = keys.key_idx
     parts = []
     for a in range(0, key_idx.size - 1, block):
         s = slice(a, min(a + block, key_idx.size - 1) + 1)
-        parts.append(_densify_block(imu, dt, f_all, key_idx[s], R_nb[s], pos_n[s], vel_n[s], gyro_bias[s],
-                                    accel_bias[s], gravity_n[s], omega_ie_n, every, index_offset))
+        parts.append(_densify_block(imu, (dt, f_all), keys.select(s), omega_ie_n, every, index_offset))
     if (index_offset + key_idx[-1]) % every == 0:
-        parts.append(DenseTrajectory(imu.t_s[key_idx[-1:]], R_nb[-1:], pos_n[-1:], vel_n[-1:]))
+        parts.append(DenseTrajectory(imu.t_s[key_idx[-1:]], keys.R_nb[-1:], keys.pos_n[-1:], keys.vel_n[-1:]))
     return DenseTrajectory.concatenate(parts)
 
 
-def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias, gravity_n, omega_ie_n,
-                   every: int, index_offset: int) -> DenseTrajectory:
-    """:func:`densify` of one block of intervals (its keyframe arrays sliced to the block), up
-    to and without the block's last keyframe.
+def _densify_block(imu: ImuData, compensated: tuple[np.ndarray, np.ndarray], keys: KeyframeStates,
+                   omega_ie_n: np.ndarray, every: int, index_offset: int) -> DenseTrajectory:
+    """:func:`densify` of one block of intervals (``keys`` the block's keyframes), up to and
+    without the block's last keyframe; ``compensated``: the IMU's
+    :func:`~.preintegration.sculling_compensated` (dt (N,) [s], specific force (N,3) [m/s^2]).
 
     The attitude needs no step-by-step recursion per direction. With ``C_j`` the product of
     the body increments ``exp(w_i h_i)`` over the first j samples of an interval and ``t_j``
@@ -84,6 +112,9 @@ def _densify_block(imu, dt, f_all, key_idx, R_nb, pos_n, vel_n, gyro_bias, accel
     ``C_j^T M C_j`` with one closure rotation ``M = R_k^T exp(W T) R_k+1 C_T^T`` per interval,
     and the blend ``fwd exp(wgt log(fwd^T bwd))`` equals ``exp(-W t_j) R_k exp(wgt log M) C_j``.
     """
+    dt, f_all = compensated
+    key_idx, R_nb, pos_n, vel_n = keys.key_idx, keys.R_nb, keys.pos_n, keys.vel_n
+    gyro_bias, accel_bias, gravity_n = keys.gyro_bias, keys.accel_bias, keys.gravity_n
     idx, valid, m = _padded(key_idx)
     K1 = key_idx.size - 1
     rows = np.arange(K1)

@@ -42,6 +42,7 @@ Pure maths: no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -125,27 +126,41 @@ def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple
     return dR, dp
 
 
+class WheelPathData(NamedTuple):
+    """What the wheel-path factors of M pairs hold fixed while the states change (built once):
+    tau_s (M,) [s] the rear time after keyframe j; dR (M,3,3), dp (M,3) [m] from
+    :func:`body_deltas`; gravity_n (M,3) [m/s^2] at keyframe j; omega_ie_n (3,) [rad/s]; front_b,
+    rear_b (3,) [m] IMU to the front / rear reference-rail wheel contact in ``b``; R_vb (3,3)."""
+
+    tau_s: np.ndarray
+    dR: np.ndarray
+    dp: np.ndarray
+    gravity_n: np.ndarray
+    omega_ie_n: np.ndarray
+    front_b: np.ndarray
+    rear_b: np.ndarray
+    R_vb: np.ndarray
+
+
 def wheel_path_residual(R_k: np.ndarray, p_k: np.ndarray, R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray,
-                        tau_s: np.ndarray, dR: np.ndarray, dp: np.ndarray, gravity_n: np.ndarray,
-                        omega_ie_n: np.ndarray, front_b: np.ndarray, rear_b: np.ndarray, R_vb: np.ndarray
-                        ) -> tuple[np.ndarray, list[np.ndarray]]:
+                        data: WheelPathData) -> tuple[np.ndarray, list[np.ndarray]]:
     """Lateral and vertical offset in ``v`` (of keyframe k) of the front contact at ``t_k`` from
     the rear contact at ``t' = t_j + tau`` (module docstring).
 
-    R_k, R_j (M,3,3) ``R_nb``; p_k, p_j, v_j (M,3) [m, m/s]; tau_s (M,) [s]; dR (M,3,3), dp (M,3)
-    from :func:`body_deltas`; gravity_n (M,3) [m/s^2]; omega_ie_n (3,) [rad/s]; front_b, rear_b (3,)
-    [m] IMU to the front / rear reference-rail wheel contact; R_vb (3,3).
+    R_k, R_j (M,3,3) ``R_nb``; p_k, p_j, v_j (M,3) [m, m/s]; ``data`` the pairs' fixed
+    :class:`WheelPathData`.
     Returns r (M,2) [m] and Jacobians [d/pose_k (M,2,6), d/pose_j (M,2,6), d/v_j (M,2,3)].
     """
-    tau = tau_s[:, None]
+    dR, dp, gravity_n, omega_ie_n, rear_b = data.dR, data.dp, data.gravity_n, data.omega_ie_n, data.rear_b
+    tau = data.tau_s[:, None]
     earth = so3_exp(-omega_ie_n[None, :] * tau)
     lever_rear = np.einsum("kij,j->ki", dR, rear_b)  # dR rear_b, in j's body frame
     R_rear = earth @ R_j  # maps j's body frame to n at t'
     P_rear = (p_j + v_j * tau + 0.5 * (gravity_n - 2.0 * np.cross(omega_ie_n, v_j)) * tau**2
               + np.einsum("kij,kj->ki", R_j, dp) + np.einsum("kij,kj->ki", R_rear, lever_rear))
     y = np.einsum("kji,kj->ki", R_k, p_k - P_rear)  # R_k^T (p_k - P_rear)
-    M = _P_YZ @ R_vb  # (2,3)
-    r = (y + front_b) @ M.T
+    M = _P_YZ @ data.R_vb  # (2,3)
+    r = (y + data.front_b) @ M.T
     Rk_T = np.swapaxes(R_k, 1, 2)
     d_pose_k = np.concatenate([M @ skew(y), np.broadcast_to(M, (y.shape[0], 2, 3))], axis=2)
     # dP_rear / d(theta_j) = -R_j [dp]x - earth R_j [dR rear_b]x ; / d(p_j) = R_j ; / d(v_j)
@@ -179,10 +194,10 @@ def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: 
     front_b, rear_b = tr.lever_arm_b(np.array([half, 0.0, 0.0])), tr.lever_arm_b(np.array([-half, 0.0, 0.0]))
     keys = [keys_x[k], keys_x[j], keys_v[j]]
     sigma = np.full((k.size, 2), st.sigma_mm * 1e-3)
+    data = WheelPathData(pairs.tau_s, dR, dp, g_n, omega_ie_n, front_b, rear_b, tr.R_vb)
 
     def build(state) -> LinearBlocks:
-        r, J = wheel_path_residual(state.R[k], state.p[k], state.R[j], state.p[j], state.v[j], pairs.tau_s,
-                                   dR, dp, g_n, omega_ie_n, front_b, rear_b, tr.R_vb)
+        r, J = wheel_path_residual(state.R[k], state.p[k], state.R[j], state.p[j], state.v[j], data)
         return LinearBlocks(keys, J, r, sigma)
 
     return k.size, build
