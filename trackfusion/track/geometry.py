@@ -70,6 +70,12 @@ class GeometryConfig(StrictModel):
     repeatability_limits_mm: list[float] = Field(default_factory=lambda: [0.1, 1.0])
     deformation_index: DeformationIndexConfig = DeformationIndexConfig()
 
+    def gauge_smoothing(self, step_m: float) -> GaugeSmoothing:
+        """How the gauge readings are smoothed on a chainage grid of ``step_m`` [m] (the box is at
+        least one step wide)."""
+        return GaugeSmoothing(self.nominal_gauge_m, self.gauge_filter, max(self.gauge_window_m, step_m),
+                              None if self.gauge_sigma_mm is None else 1e-3 * self.gauge_sigma_mm)
+
 
 #: EN 13848-5 style levels of a check, mildest first: alert (plan maintenance), intervention
 #: (correct within a set time), immediate action (restrict or stop traffic).
@@ -336,9 +342,7 @@ def compute_geometry(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: Geo
     traj, anchors = _survey_chainage(traj, trolley, cfg, design, method)
     checks = tolerances[1] if tolerances else []
     chords, bases = _chords_and_twist_bases(cfg, checks)
-    smoothing = GaugeSmoothing(cfg.nominal_gauge_m, cfg.gauge_filter, max(cfg.gauge_window_m, step_m),
-                               None if cfg.gauge_sigma_mm is None else 1e-3 * cfg.gauge_sigma_mm)
-    traces = rail_traces(traj, trolley, step_m, gauge, smoothing, cfg.min_speed_mps,
+    traces = rail_traces(traj, trolley, step_m, gauge, cfg.gauge_smoothing(step_m), cfg.min_speed_mps,
                          min_length_m=max(1.0, 4 * step_m), crossover_m=cfg.attitude_crossover_m)
     design_track = irr.design_track(design, cfg.nominal_gauge_m) if design is not None else None
     passes = _Passes([], [], [])
@@ -347,11 +351,10 @@ def compute_geometry(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: Geo
         passes.tables.append(_pass_table(tr, cfg, chords, bases, step_m, design_track, ds))
         passes.traces.append(tr)
         passes.design_s.append(ds)
-    tables, used = passes.tables, passes.traces
-    table = _mean_over_passes(tables, step_m)
+    table = _mean_over_passes(passes.tables, step_m)
     has_gauge = gauge is not None and gauge.t_s.size >= 2
     not_measured = {} if has_gauge else not_measured_without_gauge(table, trolley.other_rail)
-    for t in tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
+    for t in passes.tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
         t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
     exceedances, skipped = _tolerance_results(checks, table, passes, design_track,
                                               trolley.other_rail if not_measured else None, step_m)
@@ -362,13 +365,13 @@ def compute_geometry(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: Geo
     metrics: dict[str, Any] = {
         "step_m": float(step_m),
         "length_m": float(table["chainage_m"][-1] - table["chainage_m"][0]),
-        "passes": len(used),
+        "passes": len(passes.traces),
         "chainage": {"projection": "design (projection)", "odometer": "odometer",
                      "curvature_matching": "odometer corrected by curvature matching (seed 001)"}[method],
         "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
         "gauge": "gauge sensor" if has_gauge else
                  f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
-        "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
+        "gauge_filter_per_pass": [tr.gauge_filter for tr in passes.traces],
         "not_measured": not_measured,
         "tolerance_table": tolerances[0] if tolerances else None,
         "tolerance_checks": [_check_description(c) for c in checks],
@@ -383,11 +386,11 @@ def compute_geometry(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: Geo
     metrics["dominant_wavelengths_m"] = {
         col: spatial_spectrum(table[col], step_m).dominant_m
         for col in ("left_vertical_mm", "right_vertical_mm", "di_deg_per_m") if col in table and table[col].size >= 64}
-    if len(tables) >= 2:
-        metrics["repeatability"] = _repeatability(tables, cfg, step_m)
+    if len(passes.tables) >= 2:
+        metrics["repeatability"] = _repeatability(passes.tables, cfg, step_m)
     table.pop("t_s", None)
     units = _units(table)
-    return GeometryResult(table, units, metrics, tables, used, di_series)
+    return GeometryResult(table, units, metrics, passes.tables, passes.traces, di_series)
 
 
 @dataclass(frozen=True)
