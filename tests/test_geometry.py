@@ -13,7 +13,8 @@ from trackfusion.simulation.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.rails import TrackModel
 from trackfusion.track.shortwave import (deformation_index, detect_defects, di_amplitude, inverse_chord_filter,
                                          spatial_spectrum)
-from trackfusion.track.traces import TrolleyGeometry, rail_traces
+from trackfusion.sensors.types import GaugeData
+from trackfusion.track.traces import GaugeSmoothing, TrajectoryOnTrack, TrolleyGeometry, rail_traces
 from trackfusion.track.versines import (MCO_CHORDS_M, chord_indicator, chord_offsets, chord_transfer,
                                         symmetric_chord_transfer, symmetric_versine, two_point_transfer)
 from trackfusion.simulation.trolley import TrolleyGeometry as SimTrolley, _pose_on_grid
@@ -155,8 +156,8 @@ def test_rail_traces_from_known_pose(track, wheelbase, crossover):
     geo, pos_n, R_nb = _known_pose(track, wheelbase, (0.1, -0.7, 0.3), ypr, s)
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), wheelbase, "left")
     t = s / 1.0  # 1 m/s
-    traces = rail_traces(t, R_nb, pos_n, s, trolley, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s),
-                         crossover_m=crossover, gauge_window_m=0.01)
+    traces = rail_traces(TrajectoryOnTrack(t, R_nb, pos_n, s), trolley, 0.25, GaugeData(t, track.gauge_m(s)),
+                         GaugeSmoothing(window_m=0.01), crossover_m=crossover)
     assert len(traces) == 1 and traces[0].direction == 1
     tr = traces[0]
     inner = (tr.chainage_m > 6) & (tr.chainage_m < 54)
@@ -173,7 +174,7 @@ def test_rail_traces_from_known_pose(track, wheelbase, crossover):
         assert err_t[0] < tol_along and err_t[1] < 2e-5 and err_t[2] < 3e-6, (side, err_t)
     # a wrong lever arm shows: the test can fail
     bad = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v) + [0, 0, 1e-3], wheelbase, "left")
-    tr_bad = rail_traces(t, R_nb, pos_n, s, bad, 0.25, gauge_t_s=t, gauge_reading_m=track.gauge_m(s),
+    tr_bad = rail_traces(TrajectoryOnTrack(t, R_nb, pos_n, s), bad, 0.25, GaugeData(t, track.gauge_m(s)),
                          crossover_m=crossover)[0]
     assert np.abs(tr_bad.left_n[inner, 2] - track.rail_points_n(tr.chainage_m[inner], "left")[:, 2]).max() > 5e-4
 
@@ -184,7 +185,7 @@ def test_rail_traces_split_passes_and_reverse(track):
     t = 0.005 * np.arange(s.size)
     geo, pos_n, R_nb = _known_pose(track, 1.0, (0.0, -0.7, 0.25), (0, 0, 0), s)
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.0, "left")
-    traces = rail_traces(t, R_nb, pos_n, s, trolley, 0.25)
+    traces = rail_traces(TrajectoryOnTrack(t, R_nb, pos_n, s), trolley, 0.25)
     assert [tr.direction for tr in traces] == [1, -1]
     assert np.allclose(traces[0].left_n, traces[1].left_n[: traces[0].left_n.shape[0]], atol=1e-6) or \
         np.allclose(traces[0].chainage_m[:10], traces[1].chainage_m[:10])
@@ -271,7 +272,8 @@ def test_compute_geometry_columns_and_exceedances(track):
     cfg = GeometryConfig(chords_m=[1.0, 10.0], twist_bases_m=[3.0, 1.5], repeatability_chords_m=[],
                          repeatability_limits_mm=[])
     tol = ("test", [load_tolerances("seed000-shortwave")[1][0]])
-    g = compute_geometry(t, R_nb, pos_n, s, trolley, cfg, 0.25, t, track.gauge_m(s), None, None, tol)
+    g = compute_geometry(TrajectoryOnTrack(t, R_nb, pos_n, s), trolley, cfg, 0.25, GaugeData(t, track.gauge_m(s)),
+                         None, None, tol)
     lead = ["chainage_m", "left_e_m", "left_n_m", "left_u_m", "right_e_m", "right_n_m", "right_u_m",
             "gauge_m", "cross_level_mm", "twist_1.5m_mm", "twist_3m_mm", "left_vertical_mm", "left_lateral_mm",
             "right_vertical_mm", "right_lateral_mm"]
@@ -297,7 +299,7 @@ def test_attitude_refinement_removes_position_noise(track):
     noisy = pos_n + 2e-5 * np.random.default_rng(1).standard_normal(pos_n.shape)
     errs = {}
     for crossover in (None, 100.0):
-        tr = rail_traces(s, R_nb, noisy, s, trolley, 0.01, crossover_m=crossover)[0]
+        tr = rail_traces(TrajectoryOnTrack(s, R_nb, noisy, s), trolley, 0.01, crossover_m=crossover)[0]
         v = symmetric_versine(tr.chainage_m, tr.left_n, 1.0)[0]
         truth = symmetric_versine(tr.chainage_m, track.rail_points_n(tr.chainage_m, "left"), 1.0)[0]
         errs[crossover] = np.sqrt(np.nanmean((v - truth) ** 2))
@@ -335,10 +337,11 @@ def test_chainage_method_needs_a_design_where_it_should(track):
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")
     for method in ("projection", "curvature_matching"):
         with pytest.raises(ConfigError, match="needs a design"):
-            compute_geometry(s, R_nb, pos_n, s - 3.0, trolley, GeometryConfig(chainage=method), 0.25)
-    g = compute_geometry(s, R_nb, pos_n, s - 3.0, trolley, GeometryConfig(start_chainage_m=3.0), 0.25)
+            compute_geometry(TrajectoryOnTrack(s, R_nb, pos_n, s - 3.0), trolley, GeometryConfig(chainage=method), 0.25)
+    g = compute_geometry(TrajectoryOnTrack(s, R_nb, pos_n, s - 3.0), trolley, GeometryConfig(start_chainage_m=3.0),
+                         0.25)
     assert g.metrics["chainage"] == "odometer" and g.table["chainage_m"][0] == pytest.approx(3.0, abs=0.3)
-    g = compute_geometry(s, R_nb, pos_n, s, trolley, GeometryConfig(), 0.25, design=track.design)
+    g = compute_geometry(TrajectoryOnTrack(s, R_nb, pos_n, s), trolley, GeometryConfig(), 0.25, design=track.design)
     assert g.metrics["chainage"] == "design (projection)"
     assert np.abs(g.table["left_vertical_mm"] - 1e3 * track.irregularities.evaluate(g.table["chainage_m"])[
         "vertical_left"]).max() < 5e-3  # mm: linear regridding onto the design chainage
@@ -350,9 +353,9 @@ def test_report_figures(track):
     geo, pos_n, R_nb = _known_pose(track, 1.2, (0.0, -0.7175, 0.25), (0, 0, 0), s)
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")
     pitch_rate = np.gradient(np.arcsin(np.clip((R_nb @ geo.R_vb.T)[:, 2, 0], -1, 1)), s / 1.5)
-    g = compute_geometry(s, R_nb, pos_n, s, trolley, GeometryConfig(chords_m=[10.0], repeatability_chords_m=[],
-                                                                     repeatability_limits_mm=[],
-                                                                     deformation_index={"threshold_deg_per_m": 0.5}),
+    g = compute_geometry(TrajectoryOnTrack(s, R_nb, pos_n, s), trolley,
+                         GeometryConfig(chords_m=[10.0], repeatability_chords_m=[], repeatability_limits_mm=[],
+                                        deformation_index={"threshold_deg_per_m": 0.5}),
                          0.25, pitch_rate_radps=pitch_rate)
     # the DI is the rail slope's change per metre: here, of the trolley's (1.2 m wheelbase) pitch
     assert np.nanmax(np.abs(g.table["di_deg_per_m"])) > 0.1 and g.metrics["deformation_index"]["defects"]

@@ -15,7 +15,8 @@ from trackfusion.track.geometry import GeometryConfig, ToleranceCheck, compute_g
 from trackfusion.simulation.irregularity import IrregularitySpec, synthesize
 from trackfusion.track.design import DesignAlignment
 from trackfusion.track.rails import TrackModel
-from trackfusion.track.traces import TrolleyGeometry
+from trackfusion.sensors.types import GaugeData
+from trackfusion.track.traces import TrajectoryOnTrack, TrolleyGeometry
 from trackfusion.verdict import verdict_line
 
 from test_geometry import _known_pose  # noqa: E402  (the rail-exact trolley pose on a known track)
@@ -41,8 +42,8 @@ def _geometry(track, with_gauge: bool, reference_rail: str = "left"):
     trolley = TrolleyGeometry(geo.R_vb, np.array(geo.lever_arm_imu_v), 1.2, "left")
     t = s / 1.5
     cfg = GeometryConfig(chords_m=[10.0], repeatability_chords_m=[], repeatability_limits_mm=[])
-    gauge = (t, track.gauge_m(s)) if with_gauge else (None, None)
-    return compute_geometry(t, R_nb, pos_n, s, trolley, cfg, 0.25, *gauge, None, None, CHECKS)
+    gauge = GaugeData(t, track.gauge_m(s)) if with_gauge else None
+    return compute_geometry(TrajectoryOnTrack(t, R_nb, pos_n, s), trolley, cfg, 0.25, gauge, None, None, CHECKS)
 
 
 def test_without_gauge_the_right_rails_lateral_and_the_gauge_are_nan_and_said(track):

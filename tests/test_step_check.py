@@ -12,7 +12,7 @@ import yaml
 from trackfusion import geodesy
 from trackfusion.pipeline import parse_pipeline
 from trackfusion.registration import steps
-from trackfusion.registration.stations import readings_to_n, station_setup
+from trackfusion.registration.stations import InstrumentPrecision, readings_to_n, station_setup
 from trackfusion.sensors.mcap_log import read_log
 from trackfusion.simulation import faults as inj
 from trackfusion.simulation.scenarios import simulate_to_dir
@@ -127,13 +127,13 @@ def bridge(tmp_path_factory):
     pipe = parse_pipeline(yaml.safe_load((d / "pipeline.yaml").read_text()), str(d / "pipeline.yaml"), d)
     cfg, o = pipe.config.sensors.total_stations, pipe.config.origin
     origin = geodesy.Origin(o.lat_deg, o.lon_deg, o.h_m)
-    prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
+    prec = InstrumentPrecision(cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
 
     def readings(log, sid):
         r = log.total_stations[sid]
-        setup, _ = station_setup(sid, cfg.stations[sid], cfg.control_points, origin, *prec, cfg.refraction_k)
+        setup, _ = station_setup(sid, cfg.stations[sid], cfg.control_points, origin, prec, cfg.refraction_k)
         pos, cov = readings_to_n(r.horizontal_angle_rad, r.zenith_angle_rad, r.slope_distance_m, setup, origin,
-                                 cfg.refraction_k, *prec)
+                                 cfg.refraction_k, prec)
         return r.t_s, pos, cov
 
     return read_log(d / "log.mcap"), readings

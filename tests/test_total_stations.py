@@ -13,10 +13,11 @@ from trackfusion.registration.mislock import classify_flags
 from trackfusion.registration.polar import StationSetup, n_to_polar, polar_to_n
 from trackfusion.registration.seed_method import overlap_axes, register_seed
 from trackfusion.registration.polar import DEFAULT_REFRACTION_K
-from trackfusion.registration.stations import (ARCSEC, ControlReading, StationSetupConfig, readings_to_n, resect,
-                                              station_setup)
+from trackfusion.registration.stations import (ARCSEC, ControlReading, InstrumentPrecision, StationSetupConfig,
+                                              readings_to_n, resect, station_setup)
 
 ORIGIN = geodesy.Origin(22.93, 112.87, 25.0)
+PRECISION = InstrumentPrecision(angle_sigma_arcsec=0.5, distance_sigma_mm=1.0, distance_ppm=1.5)
 
 
 def _speed_profile(t):
@@ -130,7 +131,7 @@ def _readings(setup, noise=None, points=CONTROL):
 
 def test_resection_recovers_the_setup_and_round_trips():
     truth = StationSetup("TS01", (12.0, -6.0, 1.8), orientation_rad=np.radians(271.3))
-    res = resect("TS01", CONTROL, _readings(truth), ORIGIN, 0.5, 1.0, 1.5, 0.13)
+    res = resect("TS01", CONTROL, _readings(truth), ORIGIN, PRECISION, 0.13)
     np.testing.assert_allclose(res.setup.pos_n, truth.pos_n, atol=1e-6)
     assert abs(np.angle(np.exp(1j * (res.setup.orientation_rad - truth.orientation_rad)))) < 1e-9
     assert np.max(np.abs(res.hz_arcsec)) < 1e-3 and np.max(np.abs(res.distance_mm)) < 1e-3
@@ -144,7 +145,7 @@ def test_resection_reports_residuals_of_noisy_readings():
     rng = np.random.default_rng(5)
     noise = (rng.normal(0, 0.5 * ARCSEC, 4), rng.normal(0, 0.5 * ARCSEC, 4), rng.normal(0, 1e-3, 4))
     control = {k: (v[0] - 1152.0, v[1], v[2]) for k, v in CONTROL.items()}
-    res = resect("TS02", control, _readings(truth, noise, control), ORIGIN, 0.5, 1.0, 1.5, 0.13)
+    res = resect("TS02", control, _readings(truth, noise, control), ORIGIN, PRECISION, 0.13)
     assert np.linalg.norm(np.array(res.setup.pos_n) - truth.pos_n) < 3e-3
     assert 0.1 < res.sigma0 < 3.0
     assert len(res.to_json()["residuals"]) == 4 and np.all(np.abs(res.distance_mm) < 5)
@@ -153,22 +154,22 @@ def test_resection_reports_residuals_of_noisy_readings():
 def test_station_from_pipeline_config_given_or_resected():
     truth = StationSetup("TS02", (-20.0, 4.0, 1.7), orientation_rad=np.radians(88.0))
     cfg = StationSetupConfig.model_validate({"resection": [r.model_dump() for r in _readings(truth)]})
-    setup, res = station_setup("TS02", cfg, CONTROL, ORIGIN, 0.5, 1.0, 1.5, DEFAULT_REFRACTION_K)
+    setup, res = station_setup("TS02", cfg, CONTROL, ORIGIN, PRECISION, DEFAULT_REFRACTION_K)
     np.testing.assert_allclose(setup.pos_n, truth.pos_n, atol=1e-6)
     assert res is not None and res.to_json()["residuals"][0]["point"] == "CP1"
     given = StationSetupConfig(pos_n_m=(1.0, 2.0, 3.0), orientation_deg=90.0, tilt_arcsec=(2.0, -1.0))
-    setup, res = station_setup("TS01", given, {}, ORIGIN, 0.5, 1.0, 1.5, 0.13)
+    setup, res = station_setup("TS01", given, {}, ORIGIN, PRECISION, 0.13)
     assert res is None and setup.orientation_rad == pytest.approx(np.pi / 2)
     assert setup.tilt_rad == pytest.approx((2 * ARCSEC, -1 * ARCSEC))
     with pytest.raises(RegistrationError, match="give pos_n_m and orientation_deg"):
-        station_setup("TS03", StationSetupConfig(pos_n_m=(0.0, 0.0, 0.0)), {}, ORIGIN, 0.5, 1.0, 1.5, 0.13)
+        station_setup("TS03", StationSetupConfig(pos_n_m=(0.0, 0.0, 0.0)), {}, ORIGIN, PRECISION, 0.13)
 
 
 def test_resection_needs_three_points():
     truth = StationSetup("TS01", (0.0, 0.0, 0.0))
     two = dict(list(CONTROL.items())[:2])
     with pytest.raises(RegistrationError, match=">= 3 control points"):
-        resect("TS01", CONTROL, _readings(truth, points=two), ORIGIN, 0.5, 1.0, 1.5, 0.13)
+        resect("TS01", CONTROL, _readings(truth, points=two), ORIGIN, PRECISION, 0.13)
 
 
 # --- polar covariance and mis-locks -------------------------------------------------------------
@@ -176,7 +177,7 @@ def test_resection_needs_three_points():
 def test_reading_covariance_matches_numerical_propagation():
     st = StationSetup("S", (10.0, -5.0, 1.5), orientation_rad=1.1, tilt_rad=(2 * ARCSEC, -1 * ARCSEC))
     hz, zen, d = np.array([0.3, 2.5]), np.array([1.56, 1.60]), np.array([450.0, 30.0])
-    _, cov = readings_to_n(hz, zen, d, st, ORIGIN, 0.13, 0.5, 3.0, 1.5)
+    _, cov = readings_to_n(hz, zen, d, st, ORIGIN, 0.13, InstrumentPrecision(0.5, 3.0, 1.5))
     sig = np.array([0.5 * ARCSEC, 0.5 * ARCSEC, 0.0])
     for k in range(2):
         sig[2] = 3e-3 + 1.5e-6 * d[k]

@@ -21,7 +21,7 @@ from .errors import ConfigError
 from .track.design import AlignmentConfig, DesignAlignment
 from .track.geometry import GeometryResult, ToleranceCheck, compute_geometry, parse_tolerances, pitch_rate_v
 from .track.landxml import parse_landxml
-from .track.traces import TrolleyGeometry
+from .track.traces import TrajectoryOnTrack, TrolleyGeometry
 from .yamlio import load_yaml, parse_yaml
 
 
@@ -95,6 +95,6 @@ def geometry_for_run(pipeline, problem, res, dense, chainage_m: np.ndarray, gaug
     pitch_rate = pitch_rate_v(dense.R_nb, gyro, bias, geodesy.earth_rate_n(problem.origin), tf.R_vb)
     design = load_design(pipeline.path(cfg.inputs.design)) if cfg.inputs.design else None
     tol = load_tolerances(g.tolerances, pipeline.base_dir) if g.tolerances else None
-    return compute_geometry(dense.t_s, dense.R_nb, dense.pos_n, chainage_m, trolley, g, cfg.outputs.geometry_step_m,
-                            None if gauge is None else gauge.t_s, None if gauge is None else gauge.gauge_m,
-                            pitch_rate, design, tol, absolute_positions=problem.gnss is not None)
+    traj = TrajectoryOnTrack(dense.t_s, dense.R_nb, dense.pos_n, chainage_m,
+                             absolute_positions=problem.gnss is not None)
+    return compute_geometry(traj, trolley, g, cfg.outputs.geometry_step_m, gauge, pitch_rate, design, tol)

@@ -62,6 +62,21 @@ class StationSetupConfig(StrictModel):
 
 
 @dataclass(frozen=True)
+class InstrumentPrecision:
+    """A total station's reading precision (1-sigma, white): ``angle_sigma_arcsec`` [arcsec] on
+    the horizontal and the zenith angle, ``distance_sigma_mm`` [mm] plus ``distance_ppm`` [ppm]
+    of the slope distance."""
+
+    angle_sigma_arcsec: float
+    distance_sigma_mm: float
+    distance_ppm: float
+
+    def distance_sigma_m(self, slope_distance_m: np.ndarray) -> np.ndarray:
+        """Sigma [m] (N,) of slope distances (N,) [m]."""
+        return self.distance_sigma_mm * 1e-3 + self.distance_ppm * 1e-6 * slope_distance_m
+
+
+@dataclass(frozen=True)
 class Resection:
     """Free-station result: the set-up, residuals per reading (measured minus computed) of
     horizontal angle [arcsec], zenith angle [arcsec], slope distance [mm], their 3-D size at the
@@ -108,9 +123,9 @@ def _initial_setup(station_id: str, ctrl_n: np.ndarray, hz: np.ndarray, zen: np.
 
 
 def resect(station_id: str, control_n: dict[str, Vec3], readings: list[ControlReading], origin: geodesy.Origin,
-           angle_sigma_arcsec: float, distance_sigma_mm: float, distance_ppm: float,
-           refraction_k: float, instrument_height_m: float = 0.0, max_iterations: int = 20) -> Resection:
-    """Free-station resection (module docstring). Raises :class:`RegistrationError` for fewer than
+           precision: InstrumentPrecision, refraction_k: float, instrument_height_m: float = 0.0,
+           max_iterations: int = 20) -> Resection:
+    """Free-station resection (module docstring), the readings weighted by ``precision``. Raises :class:`RegistrationError` for fewer than
     three readings, unknown control points or a solution that does not converge."""
     if len(readings) < 3:
         raise RegistrationError(f"station {station_id}: resection needs readings to >= 3 control points, "
@@ -123,8 +138,8 @@ def resect(station_id: str, control_n: dict[str, Vec3], readings: list[ControlRe
     hz = np.radians([r.hz_deg for r in readings])
     zen = np.radians([r.zenith_deg for r in readings])
     dist = np.array([r.slope_distance_m for r in readings])
-    sig = np.concatenate([np.full(2 * dist.size, angle_sigma_arcsec * ARCSEC),
-                          distance_sigma_mm * 1e-3 + distance_ppm * 1e-6 * dist])
+    sig = np.concatenate([np.full(2 * dist.size, precision.angle_sigma_arcsec * ARCSEC),
+                          precision.distance_sigma_m(dist)])
     setup = _initial_setup(station_id, ctrl, hz, zen, dist, instrument_height_m)
 
     def misclosure(x: np.ndarray) -> np.ndarray:
@@ -157,12 +172,10 @@ def resect(station_id: str, control_n: dict[str, Vec3], readings: list[ControlRe
 
 
 def station_setup(station_id: str, cfg: StationSetupConfig, control_n: dict[str, Vec3], origin: geodesy.Origin,
-                  angle_sigma_arcsec: float, distance_sigma_mm: float, distance_ppm: float,
-                  refraction_k: float) -> tuple[StationSetup, Resection | None]:
+                  precision: InstrumentPrecision, refraction_k: float) -> tuple[StationSetup, Resection | None]:
     """The set-up of one configured station: as given, or resected (then with its report)."""
     if cfg.resection is not None:
-        res = resect(station_id, control_n, cfg.resection, origin, angle_sigma_arcsec, distance_sigma_mm,
-                     distance_ppm, refraction_k, cfg.instrument_height_m)
+        res = resect(station_id, control_n, cfg.resection, origin, precision, refraction_k, cfg.instrument_height_m)
         return res.setup, res
     if cfg.pos_n_m is None or cfg.orientation_deg is None:
         raise RegistrationError(f"station {station_id}: give pos_n_m and orientation_deg, or resection readings")
@@ -171,11 +184,11 @@ def station_setup(station_id: str, cfg: StationSetupConfig, control_n: dict[str,
 
 
 def readings_to_n(hz_rad: np.ndarray, zenith_rad: np.ndarray, slope_distance_m: np.ndarray, setup: StationSetup,
-                  origin: geodesy.Origin, refraction_k: float, angle_sigma_arcsec: float,
-                  distance_sigma_mm: float, distance_ppm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Prism points (N,3) [m] in ``n`` and their covariance (N,3,3) [m^2] from white angle noise
-    (``angle_sigma_arcsec`` on both angles) and distance noise ``distance_sigma_mm + distance_ppm d``
-    (first-order propagation; the refraction term's derivative, ~1e-5 of itself, is left out)."""
+                  origin: geodesy.Origin, refraction_k: float,
+                  precision: InstrumentPrecision) -> tuple[np.ndarray, np.ndarray]:
+    """Prism points (N,3) [m] in ``n`` and their covariance (N,3,3) [m^2] from the instrument's
+    white angle and distance noise (``precision``; first-order propagation; the refraction
+    term's derivative, ~1e-5 of itself, is left out)."""
     pos_n = polar_to_n(hz_rad, zenith_rad, slope_distance_m, setup, origin, refraction_k)
     az = hz_rad + setup.orientation_rad
     sz, cz, sa, ca = np.sin(zenith_rad), np.cos(zenith_rad), np.sin(az), np.cos(az)
@@ -187,7 +200,7 @@ def readings_to_n(hz_rad: np.ndarray, zenith_rad: np.ndarray, slope_distance_m: 
     R_ei, _ = setup.R_ei(origin)
     R_ni = geodesy.origin_R_en(origin).T @ R_ei
     J_n = R_ni @ J_i
-    var = np.column_stack([np.full(S.size, (angle_sigma_arcsec * ARCSEC) ** 2)] * 2
-                          + [(distance_sigma_mm * 1e-3 + distance_ppm * 1e-6 * S) ** 2])
+    var = np.column_stack([np.full(S.size, (precision.angle_sigma_arcsec * ARCSEC) ** 2)] * 2
+                          + [precision.distance_sigma_m(S) ** 2])
     cov = np.einsum("kij,kj,klj->kil", J_n, var, J_n)
     return pos_n, cov

@@ -32,7 +32,7 @@ from .clock_jumps import correct_station_clock_jumps
 from .steps import motionless_mislocks, station_mislocks
 from .polar import StationSetup
 from .seed_method import SeedRegistration, overlap_axes, register_seed
-from .stations import ARCSEC, Resection, readings_to_n, station_setup
+from .stations import ARCSEC, InstrumentPrecision, Resection, readings_to_n, station_setup
 
 
 @dataclass
@@ -84,7 +84,7 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
     if unknown:
         raise RegistrationError(f"sensors.total_stations.stations: the log has readings of {unknown}, "
                                 "which are not configured")
-    prec = (cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
+    prec = InstrumentPrecision(cfg.angle_sigma_arcsec, cfg.distance_sigma_mm, cfg.distance_ppm)
     stations: dict[str, StationPrep] = {}
     clock_jumps: list[dict] = []
     step_mislocks: list[dict] = []
@@ -92,9 +92,9 @@ def prepare_prisms(data: dict[str, TotalStationData], cfg, fs, origin: geodesy.O
         d = data[sid]
         if d.t_s.size == 0:
             raise RegistrationError(f"/total_station/{sid}: no readings")
-        setup, res = station_setup(sid, sc, cfg.control_points, origin, *prec, cfg.refraction_k)
+        setup, res = station_setup(sid, sc, cfg.control_points, origin, prec, cfg.refraction_k)
         pos_n, cov_n = readings_to_n(d.horizontal_angle_rad, d.zenith_angle_rad, d.slope_distance_m, setup, origin,
-                                     cfg.refraction_k, *prec)
+                                     cfg.refraction_k, prec)
         flagged, mislocks, unpaired = station_mislocks(d.t_s, pos_n, cov_n)  # a mis-lock onto another reflector
         ok = ~flagged
         sync = None

@@ -248,16 +248,29 @@ def _track_series(s_m: np.ndarray, rms: float, corr_m: float, rng: np.random.Gen
     return (x * rms / max(x.std(), 1e-15))[:n]
 
 
+@dataclass(frozen=True)
+class TrackAndBogie:
+    """What a simulated vision run's track and bogie are like: the track's ``gauge_nominal_m``
+    [m] and the rms ``alignment_rms_m`` [m] of its centreline alignment and vertical profile;
+    the peaks (about 2.5 rms) of the measuring frame's motion relative to the track,
+    ``lateral_peak_m`` [m], ``vertical_peak_m`` [m], ``roll_peak_rad`` [rad]."""
+
+    gauge_nominal_m: float = 1.435
+    alignment_rms_m: float = 1.5e-3
+    lateral_peak_m: float = 5e-3
+    vertical_peak_m: float = 10e-3
+    roll_peak_rad: float = np.radians(0.5)
+
+
 def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate_hz: float = 250.0,
-                 gauge_nominal_m: float = 1.435, lateral_peak_m: float = 5e-3,
-                 vertical_peak_m: float = 10e-3, roll_peak_rad: float = np.radians(0.5),
-                 wear: dict | None = None, alignment_rms_m: float = 1.5e-3, seed: int = 1,
+                 conditions: TrackAndBogie = TrackAndBogie(), wear: dict | None = None, seed: int = 1,
                  truth_frames: slice = slice(None)) -> VisionRun:
     """Truth of a run: the measuring frame on the bogie moving relative to the track (lateral
-    mode at 1.2 Hz, bounce at 3.5 Hz, roll at 1.0 Hz, each with a peak about 2.5 rms), a track
-    with gauge variation (rms 1 mm) and cross-level (rms 1.5 mm) of wavelengths above ~5 m, a
-    centreline alignment and vertical profile (rms ``alignment_rms_m`` each, wavelengths above
-    ~2 m; the measuring frame follows them, the rails carry them), and optional wear:
+    mode at 1.2 Hz, bounce at 3.5 Hz, roll at 1.0 Hz, each with a peak about 2.5 rms, the peaks
+    of ``conditions``), a track with gauge variation (rms 1 mm) and cross-level (rms 1.5 mm) of
+    wavelengths above ~5 m, a centreline alignment and vertical profile (rms
+    ``conditions.alignment_rms_m`` each, wavelengths above ~2 m; the measuring frame follows
+    them, the rails carry them), and optional wear:
     ``wear = {"start_m", "end_m", "vertical_mm", "side_mm", "side_rail"}``
     (both rails lose the vertical wear, ``side_rail`` the side wear; 5 m ramps). The true gauge
     is computed for ``truth_frames`` only (NaN elsewhere: an IMU lead-in nobody films)."""
@@ -266,15 +279,15 @@ def simulate_run(head: RailHead, *, n_frames: int, speed_mps: float = 30.0, rate
     rng = np.random.default_rng(seed)
     t = np.arange(n_frames) / rate_hz
     s = speed_mps * t
-    y_rel = resonant_noise(n_frames, rate_hz, 1.2, 0.15, lateral_peak_m / 2.5, rng)
-    z_rel = resonant_noise(n_frames, rate_hz, 3.5, 0.2, vertical_peak_m / 2.5, rng)
-    roll_rel = resonant_noise(n_frames, rate_hz, 1.0, 0.2, roll_peak_rad / 2.5, rng)
+    y_rel = resonant_noise(n_frames, rate_hz, 1.2, 0.15, conditions.lateral_peak_m / 2.5, rng)
+    z_rel = resonant_noise(n_frames, rate_hz, 3.5, 0.2, conditions.vertical_peak_m / 2.5, rng)
+    roll_rel = resonant_noise(n_frames, rate_hz, 1.0, 0.2, conditions.roll_peak_rad / 2.5, rng)
     gv = _track_series(s, 1e-3, 5.0, rng)
     cl = _track_series(s, 1.5e-3, 5.0, rng)
-    al = _track_series(s, alignment_rms_m, 2.0, rng)
-    vp = _track_series(s, alignment_rms_m, 2.0, rng)
+    al = _track_series(s, conditions.alignment_rms_m, 2.0, rng)
+    vp = _track_series(s, conditions.alignment_rms_m, 2.0, rng)
     q_g = head.gauge_point_mm()[0] / 1000
-    half = gauge_nominal_m / 2 + q_g
+    half = conditions.gauge_nominal_m / 2 + q_g
     vw = {k: np.zeros(n_frames) for k in SIDE_SIGN}
     sw = {k: np.zeros(n_frames) for k in SIDE_SIGN}
     if wear:

@@ -27,6 +27,8 @@ grades in :data:`trackfusion.sensors.imu.IMU_GRADES`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..sensors.imu import ARCSEC, DEG, G0_MPS2, ImuSpec
@@ -43,18 +45,51 @@ def _error_matrix(scale_sigma: float, misalignment_sigma_rad: float, rng: np.ran
     return M
 
 
-def _sensor_errors(true: np.ndarray, dt_s: float, rng: np.random.Generator, *, bias_sigma: float,
-                   instability_sigma: float, tau_s: float, white_root_psd: float, scale_sigma: float,
-                   misalignment_sigma_rad: float, quantum: float) -> tuple[np.ndarray, dict]:
+@dataclass(frozen=True)
+class TriadErrors:
+    """One triad's error model in SI units (module docstring), all 1-sigma: the turn-on
+    ``bias_sigma``, the Gauss-Markov ``instability_sigma`` with correlation time ``tau_s`` [s],
+    the white noise's ``white_root_psd`` (per sqrt(s)), the scale factor ``scale_sigma``
+    (fraction), the axis misalignment ``misalignment_sigma_rad`` [rad]; the increments'
+    ``quantum`` (0: none). Rates in rad/s for the gyro, m/s^2 for the accelerometer."""
+
+    bias_sigma: float
+    instability_sigma: float
+    tau_s: float
+    white_root_psd: float
+    scale_sigma: float
+    misalignment_sigma_rad: float
+    quantum: float
+
+    @classmethod
+    def gyro(cls, spec: ImuSpec) -> "TriadErrors":
+        """The gyro triad's errors of a datasheet."""
+        return cls(bias_sigma=spec.gyro_bias_deg_per_h * DEG / 3600.0,
+                   instability_sigma=spec.gyro_bias_instability_deg_per_h * DEG / 3600.0, tau_s=spec.gyro_bias_tau_s,
+                   white_root_psd=spec.gyro_arw_deg_per_sqrt_h * DEG / 60.0, scale_sigma=spec.gyro_scale_ppm * 1e-6,
+                   misalignment_sigma_rad=spec.gyro_misalignment_arcsec * ARCSEC, quantum=spec.gyro_quantum_rad)
+
+    @classmethod
+    def accel(cls, spec: ImuSpec) -> "TriadErrors":
+        """The accelerometer triad's errors of a datasheet."""
+        return cls(bias_sigma=spec.accel_bias_ug * 1e-6 * G0_MPS2,
+                   instability_sigma=spec.accel_bias_instability_ug * 1e-6 * G0_MPS2, tau_s=spec.accel_bias_tau_s,
+                   white_root_psd=spec.accel_vrw_mps_per_sqrt_h / 60.0, scale_sigma=spec.accel_scale_ppm * 1e-6,
+                   misalignment_sigma_rad=spec.accel_misalignment_arcsec * ARCSEC, quantum=spec.accel_quantum_mps)
+
+
+def _sensor_errors(true: np.ndarray, dt_s: float, rng: np.random.Generator,
+                   errors: TriadErrors) -> tuple[np.ndarray, dict]:
     """Apply one triad's error model to ``true`` (N, 3); returns measured (N, 3) and drawn values."""
     n = true.shape[0]
-    M = _error_matrix(scale_sigma, misalignment_sigma_rad, rng)
-    bias = rng.normal(0.0, 1.0, 3) * bias_sigma
-    gm = np.column_stack([noise.gauss_markov(n, dt_s, instability_sigma, tau_s, rng) for _ in range(3)])
-    white = np.column_stack([noise.white(n, white_root_psd / np.sqrt(dt_s), rng) for _ in range(3)])
+    M = _error_matrix(errors.scale_sigma, errors.misalignment_sigma_rad, rng)
+    bias = rng.normal(0.0, 1.0, 3) * errors.bias_sigma
+    gm = np.column_stack([noise.gauss_markov(n, dt_s, errors.instability_sigma, errors.tau_s, rng)
+                          for _ in range(3)])
+    white = np.column_stack([noise.white(n, errors.white_root_psd / np.sqrt(dt_s), rng) for _ in range(3)])
     meas = true @ M.T + bias + gm + white
-    if quantum > 0:
-        meas = _quantise_increments(meas, dt_s, quantum)
+    if errors.quantum > 0:
+        meas = _quantise_increments(meas, dt_s, errors.quantum)
     drawn = {"bias": bias.tolist(), "error_matrix": M.tolist(),
              "bias_gm_first": gm[0].tolist(), "bias_gm_last": gm[-1].tolist()}
     return meas, drawn
@@ -78,16 +113,8 @@ def simulate_imu(t_s: np.ndarray, gyro_true_radps: np.ndarray, accel_true_mps2: 
         return ImuData(np.asarray(t_s, float), np.array(gyro_true_radps, float),
                        np.array(accel_true_mps2, float)), {"ideal": True}
     dt = 1.0 / spec.rate_hz
-    gyro, drawn_g = _sensor_errors(
-        gyro_true_radps, dt, rng, bias_sigma=spec.gyro_bias_deg_per_h * DEG / 3600.0,
-        instability_sigma=spec.gyro_bias_instability_deg_per_h * DEG / 3600.0, tau_s=spec.gyro_bias_tau_s,
-        white_root_psd=spec.gyro_arw_deg_per_sqrt_h * DEG / 60.0, scale_sigma=spec.gyro_scale_ppm * 1e-6,
-        misalignment_sigma_rad=spec.gyro_misalignment_arcsec * ARCSEC, quantum=spec.gyro_quantum_rad)
-    accel, drawn_a = _sensor_errors(
-        accel_true_mps2, dt, rng, bias_sigma=spec.accel_bias_ug * 1e-6 * G0_MPS2,
-        instability_sigma=spec.accel_bias_instability_ug * 1e-6 * G0_MPS2, tau_s=spec.accel_bias_tau_s,
-        white_root_psd=spec.accel_vrw_mps_per_sqrt_h / 60.0, scale_sigma=spec.accel_scale_ppm * 1e-6,
-        misalignment_sigma_rad=spec.accel_misalignment_arcsec * ARCSEC, quantum=spec.accel_quantum_mps)
+    gyro, drawn_g = _sensor_errors(gyro_true_radps, dt, rng, TriadErrors.gyro(spec))
+    accel, drawn_a = _sensor_errors(accel_true_mps2, dt, rng, TriadErrors.accel(spec))
     drawn = {"gyro_radps": drawn_g, "accel_mps2": drawn_a, "spec": spec.model_dump()}
     gyro_range = spec.gyro_range_deg_per_s * DEG
     return ImuData(np.asarray(t_s, float), np.clip(gyro, -gyro_range, gyro_range),

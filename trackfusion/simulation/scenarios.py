@@ -117,8 +117,8 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     timings: dict[str, float] = {}
     tic = time.perf_counter()
     scene = _scene(cfg, seed, say)
-    spec, aiding_specs, motion, kin, track, origin, rngs = (scene.imu_spec, scene.aiding_specs, scene.motion,
-                                                            scene.kin, scene.track, scene.origin, scene.rngs)
+    spec, motion, kin, track, origin, rngs = (scene.imu_spec, scene.motion, scene.kin, scene.track, scene.origin,
+                                              scene.rngs)
     s_lo, s_hi = motion.chainage_range_m
     timings["track_s"] = time.perf_counter() - tic
 
@@ -135,7 +135,7 @@ def simulate(config: ScenarioConfig | str, seed: int = 0, ideal: bool = False,
     log = SensorLog(imu=imu)
     drawn: dict[str, Any] = {"imu": drawn_imu}
     lever_arms: dict[str, list[float]] = {}
-    _simulate_aiding(aiding_specs, kin, track, motion, origin, rngs, ideal, log, drawn, lever_arms)
+    _simulate_aiding(scene, ideal, log, drawn, lever_arms)
     timings["aiding_s"] = time.perf_counter() - tic
 
     tic = time.perf_counter()
@@ -199,8 +199,7 @@ def simulate_aiding(config: ScenarioConfig | str, seed: int = 0, ideal: bool = F
     cfg = config if isinstance(config, ScenarioConfig) else load_scenario(config)
     scene = _scene(cfg, seed, lambda _m: None)
     log = SensorLog()
-    _simulate_aiding(scene.aiding_specs, scene.kin, scene.track, scene.motion, scene.origin, scene.rngs, ideal,
-                     log, {}, {})
+    _simulate_aiding(scene, ideal, log, {}, {})
     return log
 
 
@@ -269,10 +268,11 @@ def _aiding_specs(cfg: ScenarioConfig) -> dict[str, tuple[Any, np.ndarray | None
     return out
 
 
-def _simulate_aiding(specs: dict, kin: TrolleyKinematics, track: TrackModel, motion: MotionProfile,
-                     origin: geodesy.Origin, rngs: dict, ideal: bool, log: SensorLog, drawn: dict,
-                     lever_arms: dict) -> None:
-    """Simulate every configured aiding sensor into ``log``; fill ``drawn`` and ``lever_arms``."""
+def _simulate_aiding(scene: _Scene, ideal: bool, log: SensorLog, drawn: dict, lever_arms: dict) -> None:
+    """Simulate every configured aiding sensor of ``scene`` into ``log`` (each from its own random
+    stream); fill ``drawn`` and ``lever_arms``."""
+    specs, kin, track, motion, origin, rngs = (scene.aiding_specs, scene.kin, scene.track, scene.motion,
+                                               scene.origin, scene.rngs)
     if "odometer" in specs:
         spec, _ = specs["odometer"]
         t = _epochs(motion, spec.rate_hz)

@@ -20,6 +20,8 @@ matched point the nearest correction is kept.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -117,20 +119,33 @@ def match_curves(s_app_m: np.ndarray, curvature_1pm: np.ndarray, design: DesignA
     return anchors
 
 
+@dataclass(frozen=True)
+class CurvatureMatching:
+    """Settings of :func:`curvature_matched_chainage`: the first match's search window
+    ``search_m`` [m] (10 m on the re-matches), the speed ``min_speed_mps`` [m/s] splitting the
+    run into passes, the number of matchings ``iterations``, the matching grid's ``step_m`` [m]."""
+
+    search_m: float = 50.0
+    min_speed_mps: float = 0.05
+    iterations: int = 3
+    step_m: float = 0.2
+
+
 def curvature_matched_chainage(t_s: np.ndarray, R_nv: np.ndarray, chainage_m: np.ndarray,
-                               design: DesignAlignment, start_chainage_m: float, search_m: float = 50.0,
-                               min_speed_mps: float = 0.05, iterations: int = 3, step_m: float = 0.2
-                               ) -> tuple[np.ndarray, list]:
+                               design: DesignAlignment, start_chainage_m: float,
+                               settings: CurvatureMatching = CurvatureMatching()) -> tuple[np.ndarray, list]:
     """Design chainage (N,) of a run from its approximate chainage (N,) (odometer or integrated
     speed, 0 at the start, placed at ``start_chainage_m``) by curvature matching, pass by pass.
     The heading of the trolley's x axis (``R_nv`` (N, 3, 3)) gives the curvature. Returns the
     chainage and the anchors ``(s_app, s_design)`` of each pass; a pass without a matched curve
-    keeps ``s_app``. The matching is repeated ``iterations`` times on the corrected chainage."""
+    keeps ``s_app``. The matching is repeated ``settings.iterations`` times on the corrected
+    chainage."""
+    search_m, step_m = settings.search_m, settings.step_m
     s_app = start_chainage_m + np.asarray(chainage_m, dtype=float)
     heading = np.unwrap(np.arctan2(R_nv[:, 1, 0], R_nv[:, 0, 0]))
     out = s_app.copy()
     all_anchors = []
-    for p in split_passes(t_s, s_app, min_speed_mps, 5.0):
+    for p in split_passes(t_s, s_app, settings.min_speed_mps, 5.0):
         sl = slice(p.start, p.stop)
         s_p = s_app[sl]
         order = np.argsort(s_p, kind="stable")
@@ -138,7 +153,7 @@ def curvature_matched_chainage(t_s: np.ndarray, R_nv: np.ndarray, chainage_m: np
         h_grid = np.interp(grid, s_p[order], heading[sl][order])
         mapped = grid.copy()
         anchors: list = []
-        for _ in range(iterations):  # re-match on the corrected chainage: removes the scale's stretch
+        for _ in range(settings.iterations):  # re-match on the corrected chainage: removes the scale's stretch
             found = match_curves(mapped, np.gradient(h_grid, mapped), design, search_m, step_m)
             if not found:
                 break

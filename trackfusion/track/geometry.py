@@ -18,13 +18,14 @@ from pydantic import Field, ValidationError
 
 from ..errors import ConfigError, EvaluationError, TrackGeometryError, config_error_from_validation
 from ..evaluation.repeatability import repeatability
+from ..sensors.types import GaugeData
 from ..strict import StrictModel
 from . import irregularities as irr
 from .chainage import curvature_matched_chainage, project_onto_design, regrid
 from .design import DesignAlignment
 from .quality import SECTION_M, quality_index
 from .shortwave import deformation_index, detect_defects, merge_defects, spatial_spectrum
-from .traces import RailTraces, TrolleyGeometry, rail_traces
+from .traces import GaugeSmoothing, RailTraces, TrajectoryOnTrack, TrolleyGeometry, rail_traces
 from .versines import chord_indicator, chord_offsets
 
 RAILS = ("left", "right")
@@ -68,6 +69,12 @@ class GeometryConfig(StrictModel):
     repeatability_chords_m: list[float] = Field(default_factory=lambda: [1.0, 10.0])
     repeatability_limits_mm: list[float] = Field(default_factory=lambda: [0.1, 1.0])
     deformation_index: DeformationIndexConfig = DeformationIndexConfig()
+
+    def gauge_smoothing(self, step_m: float) -> GaugeSmoothing:
+        """How the gauge readings are smoothed on a chainage grid of ``step_m`` [m] (the box is at
+        least one step wide)."""
+        return GaugeSmoothing(self.nominal_gauge_m, self.gauge_filter, max(self.gauge_window_m, step_m),
+                              None if self.gauge_sigma_mm is None else 1e-3 * self.gauge_sigma_mm)
 
 
 #: EN 13848-5 style levels of a check, mildest first: alert (plan maintenance), intervention
@@ -317,58 +324,132 @@ def _indicator_exceedances(tr: RailTraces, design_track, design_s, check: Tolera
     return out
 
 
-def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
-                     trolley: TrolleyGeometry, cfg: GeometryConfig, step_m: float,
-                     gauge_t_s: np.ndarray | None = None, gauge_m: np.ndarray | None = None,
-                     pitch_rate_radps: np.ndarray | None = None, design: DesignAlignment | None = None,
-                     tolerances: tuple[str, list[ToleranceCheck]] | None = None,
-                     absolute_positions: bool = True) -> GeometryResult:
+def compute_geometry(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: GeometryConfig, step_m: float,
+                     gauge: GaugeData | None = None, pitch_rate_radps: np.ndarray | None = None,
+                     design: DesignAlignment | None = None,
+                     tolerances: tuple[str, list[ToleranceCheck]] | None = None) -> GeometryResult:
     """Track geometry of a survey (module docstring).
 
-    t_s (N,) [s], R_nb (N, 3, 3), pos_n (N, 3) [m]: the dense trajectory; chainage_m (N,) [m] of
-    the trolley origin; gauge readings (K,) at gauge_t_s (K,) or None (nominal gauge);
+    traj: the dense trajectory, t_s (N,) [s], R_nb (N, 3, 3), pos_n (N, 3) [m], and chainage_m
+    (N,) [m] of the trolley origin; gauge: the gauge readings (K,) or None (nominal gauge);
     pitch_rate_radps (N,) for the DI (or None: no DI); design: reference the irregularities and
     seed-002 checks to it. Chainage (``cfg.chainage``): ``projection`` onto the design
     (positions in the design's ``n``), ``odometer`` (``start_chainage_m`` + chainage_m),
     ``curvature_matching`` (seed 001, :func:`.chainage.curvature_matched_chainage`), or
-    ``auto``: projection with a design and ``absolute_positions``, else the odometer.
+    ``auto``: projection with a design and ``traj.absolute_positions``, else the odometer.
     """
-    method = _chainage_method(cfg, design, absolute_positions)
-    if method == "curvature_matching":
-        chainage_m, anchors = curvature_matched_chainage(t_s, R_nb @ trolley.R_vb.T, chainage_m, design,
-                                                         cfg.start_chainage_m)
-    else:
-        chainage_m = cfg.start_chainage_m + np.asarray(chainage_m, dtype=float)
+    method = _chainage_method(cfg, design, traj.absolute_positions)
+    traj, anchors = _survey_chainage(traj, trolley, cfg, design, method)
     checks = tolerances[1] if tolerances else []
+    chords, bases = _chords_and_twist_bases(cfg, checks)
+    traces = rail_traces(traj, trolley, step_m, gauge, cfg.gauge_smoothing(step_m), cfg.min_speed_mps,
+                         min_length_m=max(1.0, 4 * step_m), crossover_m=cfg.attitude_crossover_m)
+    design_track = irr.design_track(design, cfg.nominal_gauge_m) if design is not None else None
+    passes = _Passes([], [], [])
+    for tr in traces:
+        tr, ds = _on_design_chainage(tr, design, method, step_m)
+        passes.tables.append(_pass_table(tr, cfg, chords, bases, step_m, design_track, ds))
+        passes.traces.append(tr)
+        passes.design_s.append(ds)
+    table = _mean_over_passes(passes.tables, step_m)
+    has_gauge = gauge is not None and gauge.t_s.size >= 2
+    not_measured = {} if has_gauge else not_measured_without_gauge(table, trolley.other_rail)
+    for t in passes.tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
+        t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
+    exceedances, skipped = _tolerance_results(checks, table, passes, design_track,
+                                              trolley.other_rail if not_measured else None, step_m)
+    di_series, di_metrics = [], None
+    if pitch_rate_radps is not None and cfg.deformation_index.enabled:
+        di_series, table["di_deg_per_m"], di_metrics = _deformation_index(pitch_rate_radps, traj, passes,
+                                                                          cfg.deformation_index, step_m)
+    metrics: dict[str, Any] = {
+        "step_m": float(step_m),
+        "length_m": float(table["chainage_m"][-1] - table["chainage_m"][0]),
+        "passes": len(passes.traces),
+        "chainage": {"projection": "design (projection)", "odometer": "odometer",
+                     "curvature_matching": "odometer corrected by curvature matching (seed 001)"}[method],
+        "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
+        "gauge": "gauge sensor" if has_gauge else
+                 f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
+        "gauge_filter_per_pass": [tr.gauge_filter for tr in passes.traces],
+        "not_measured": not_measured,
+        "tolerance_table": tolerances[0] if tolerances else None,
+        "tolerance_checks": [_check_description(c) for c in checks],
+        "exceedances": exceedances,
+        "skipped_checks": skipped,
+    }
+    metrics["quality_index"] = _quality_index(table, cfg, design is not None, step_m)
+    if method == "curvature_matching":
+        metrics["curvature_matching_anchors"] = [[{"s_app_m": a, "chainage_m": d} for a, d in p] for p in anchors]
+    if di_metrics is not None:
+        metrics["deformation_index"] = di_metrics
+    metrics["dominant_wavelengths_m"] = {
+        col: spatial_spectrum(table[col], step_m).dominant_m
+        for col in ("left_vertical_mm", "right_vertical_mm", "di_deg_per_m") if col in table and table[col].size >= 64}
+    if len(passes.tables) >= 2:
+        metrics["repeatability"] = _repeatability(passes.tables, cfg, step_m)
+    table.pop("t_s", None)
+    units = _units(table)
+    return GeometryResult(table, units, metrics, passes.tables, passes.traces, di_series)
+
+
+@dataclass(frozen=True)
+class _Passes:
+    """The passes a geometry is computed from: their rail ``traces`` (on the chainage used), their
+    ``tables`` (:func:`_pass_table`) and their design chainage ``design_s`` (N,) [m] (None
+    without a design)."""
+
+    traces: list[RailTraces]
+    tables: list[dict[str, np.ndarray]]
+    design_s: list[np.ndarray | None]
+
+
+def _survey_chainage(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, cfg: GeometryConfig,
+                     design: DesignAlignment | None, method: str) -> tuple[TrajectoryOnTrack, list]:
+    """The trajectory on the chainage of ``method`` (curvature matching, else the odometer's
+    plus ``start_chainage_m``; projection onto the design is done per pass later), and the
+    curvature matching's anchors (none for the other methods)."""
+    if method == "curvature_matching":
+        chainage_m, anchors = curvature_matched_chainage(traj.t_s, traj.R_nb @ trolley.R_vb.T, traj.chainage_m,
+                                                         design, cfg.start_chainage_m)
+        return replace(traj, chainage_m=chainage_m), anchors
+    return replace(traj, chainage_m=cfg.start_chainage_m + np.asarray(traj.chainage_m, dtype=float)), []
+
+
+def _chords_and_twist_bases(cfg: GeometryConfig, checks: list[ToleranceCheck]
+                            ) -> tuple[list[tuple[float, float]], list[float]]:
+    """The versine chords (before, after) [m] and twist bases [m] to compute: the configured ones
+    and those the tolerance checks need, sorted."""
     chords = sorted({(0.5 * c, 0.5 * c) for c in cfg.chords_m}
                     | {(0.5 * r, 0.5 * r) for r in cfg.repeatability_chords_m}
                     | {(c.before_m, c.after_m) for c in cfg.asymmetric_chords}
                     | {(0.5 * c.length_m, 0.5 * c.length_m) for c in checks
                        if c.kind == "limit" and c.quantity.endswith("versine")})
     bases = sorted(set(cfg.twist_bases_m) | {c.length_m for c in checks if c.kind == "limit" and c.quantity == "twist"})
-    traces = rail_traces(t_s, R_nb, pos_n, chainage_m, trolley, step_m, gauge_t_s, gauge_m, cfg.nominal_gauge_m,
-                         cfg.min_speed_mps, min_length_m=max(1.0, 4 * step_m), crossover_m=cfg.attitude_crossover_m,
-                         gauge_window_m=max(cfg.gauge_window_m, step_m), gauge_filter=cfg.gauge_filter,
-                         gauge_sigma_m=None if cfg.gauge_sigma_mm is None else 1e-3 * cfg.gauge_sigma_mm)
-    design_track = irr.design_track(design, cfg.nominal_gauge_m) if design is not None else None
-    tables, used, design_s_all = [], [], []
-    for tr in traces:
-        ds = None
-        if method == "projection":
-            tr = regrid(tr, project_onto_design(0.5 * (tr.left_n + tr.right_n), design), step_m)
-        if design is not None:
-            ds = tr.chainage_m
-            if ds.min() < 0 or ds.max() > design.length_m:
-                raise TrackGeometryError(f"chainage {ds.min():.1f}..{ds.max():.1f} m leaves the design alignment "
-                                         f"[0, {design.length_m:g}] m (set geometry.start_chainage_m)")
-        tables.append(_pass_table(tr, cfg, chords, bases, step_m, design_track, ds))
-        used.append(tr)
-        design_s_all.append(ds)
-    table = _mean_over_passes(tables, step_m)
-    has_gauge = gauge_t_s is not None and gauge_t_s.size >= 2
-    not_measured = {} if has_gauge else not_measured_without_gauge(table, trolley.other_rail)
-    for t in tables + [table]:  # NaN, never the copy of the reference rail or the nominal gauge
-        t.update({c: np.full(t[c].shape, np.nan) for c in not_measured})
+    return chords, bases
+
+
+def _on_design_chainage(tr: RailTraces, design: DesignAlignment | None, method: str,
+                        step_m: float) -> tuple[RailTraces, np.ndarray | None]:
+    """A pass's traces regridded on the design chainage (``method == "projection"``), and their
+    design chainage (N,) [m] (None without a design), checked to lie on the design."""
+    if method == "projection":
+        tr = regrid(tr, project_onto_design(0.5 * (tr.left_n + tr.right_n), design), step_m)
+    if design is None:
+        return tr, None
+    ds = tr.chainage_m
+    if ds.min() < 0 or ds.max() > design.length_m:
+        raise TrackGeometryError(f"chainage {ds.min():.1f}..{ds.max():.1f} m leaves the design alignment "
+                                 f"[0, {design.length_m:g}] m (set geometry.start_chainage_m)")
+    return tr, ds
+
+
+def _tolerance_results(checks: list[ToleranceCheck], table: dict[str, np.ndarray], passes: _Passes, design_track,
+                       unmeasured_rail: str | None, step_m: float) -> tuple[list[dict], list[dict]]:
+    """The exceedances of the tolerance checks and the checks skipped (with why): ``limit``
+    checks on the mean ``table``, chord indicators per pass against ``design_track`` (None: no
+    design). ``unmeasured_rail``: the rail whose lateral position was not measured (no gauge
+    sensor), or None."""
     exceedances: list[dict] = []
     skipped: list[dict] = []
     for c in checks:
@@ -378,68 +459,52 @@ def compute_geometry(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chain
                 skipped.append({"check": c.name, "columns": missing,
                                 "reason": f"not measured ({', '.join(missing)})"})
             exceedances += limit_exceedances(table, c, step_m)
-        elif design is None:
+        elif design_track is None:
             skipped.append({"check": c.name, "reason": "needs a design alignment (inputs.design)"})
-        elif not any(np.ptp(tr.chainage_m) >= c.chord_m for tr in used):
+        elif not any(np.ptp(tr.chainage_m) >= c.chord_m for tr in passes.traces):
             skipped.append({"check": c.name, "reason": f"no pass is as long as the {c.chord_m:g} m chord"})
         else:
-            exceedances += [dict(e, pass_index=k) for k, (tr, ds) in enumerate(zip(used, design_s_all))
+            exceedances += [dict(e, pass_index=k) for k, (tr, ds) in enumerate(zip(passes.traces, passes.design_s))
                             if np.ptp(tr.chainage_m) >= c.chord_m
                             for e in _indicator_exceedances(tr, design_track, ds, c)
-                            if not (not_measured and e["check"] == f"{c.name}:{trolley.other_rail}_lateral")]
-            if not_measured:
-                skipped.append({"check": c.name, "columns": [f"{trolley.other_rail}_lateral"],
-                                "reason": f"not measured ({trolley.other_rail}_lateral: {NO_GAUGE})"})
+                            if not (unmeasured_rail and e["check"] == f"{c.name}:{unmeasured_rail}_lateral")]
+            if unmeasured_rail:
+                skipped.append({"check": c.name, "columns": [f"{unmeasured_rail}_lateral"],
+                                "reason": f"not measured ({unmeasured_rail}_lateral: {NO_GAUGE})"})
+    return exceedances, skipped
+
+
+def _check_description(c: ToleranceCheck) -> dict:
+    """A tolerance check in metrics.json: its name, kind, the columns it applies to, its levels [mm]."""
+    return {"name": c.name, "kind": c.kind,
+            "columns": c.columns() if c.kind == "limit" else [f"{r}_{comp}" for r in RAILS
+                                                               for comp in ("vertical", "lateral")],
+            "levels_mm": dict(c.levels())}
+
+
+def _deformation_index(pitch_rate_radps: np.ndarray, traj: TrajectoryOnTrack, passes: _Passes,
+                       dcfg: DeformationIndexConfig, step_m: float
+                       ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray, dict]:
+    """Seed 000's deformation index from the pitch rate (N,) [rad/s]: per pass its chainage (M,)
+    [m] and DI (M,) [deg/m], the mean over passes on the geometry table's grid (the table's
+    ``di_deg_per_m``), and the metrics.json ``deformation_index`` section (defects)."""
+    t_s = traj.t_s
+    speed = np.gradient(traj.chainage_m, t_s)
+    di = deformation_index(pitch_rate_radps, speed, dcfg.v_min_mps)
     di_series, di_defects = [], []
-    if pitch_rate_radps is not None and cfg.deformation_index.enabled:
-        dcfg = cfg.deformation_index
-        speed = np.gradient(chainage_m, t_s)
-        di = deformation_index(pitch_rate_radps, speed, dcfg.v_min_mps)
-        for tr in used:
-            m = (t_s >= tr.t_s.min()) & (t_s <= tr.t_s.max())
-            s_di = np.interp(t_s[m], tr.t_s[np.argsort(tr.t_s)], tr.chainage_m[np.argsort(tr.t_s)])
-            di_series.append((s_di, di[m]))
-            di_defects.append(detect_defects(s_di, di[m], dcfg.threshold_deg_per_m, dcfg.merge_m))
-        table["di_deg_per_m"] = _mean_over_passes(
-            [{"chainage_m": t["chainage_m"], "left_e_m": t["left_e_m"],
-              "di_deg_per_m": np.interp(t["chainage_m"], *_sorted(*ser))} for t, ser in zip(tables, di_series)],
-            step_m)["di_deg_per_m"]
-    metrics: dict[str, Any] = {
-        "step_m": float(step_m),
-        "length_m": float(table["chainage_m"][-1] - table["chainage_m"][0]),
-        "passes": len(used),
-        "chainage": {"projection": "design (projection)", "odometer": "odometer",
-                     "curvature_matching": "odometer corrected by curvature matching (seed 001)"}[method],
-        "irregularity_reference": "design" if design is not None else f"EN 13848 band {cfg.irregularity_band}",
-        "gauge": "gauge sensor" if gauge_t_s is not None and gauge_t_s.size >= 2 else
-                 f"nominal {cfg.nominal_gauge_m} m (no gauge sensor: the other rail's alignment includes the gauge irregularity)",
-        "gauge_filter_per_pass": [tr.gauge_filter for tr in used],
-        "not_measured": not_measured,
-        "tolerance_table": tolerances[0] if tolerances else None,
-        "tolerance_checks": [{"name": c.name, "kind": c.kind,
-                              "columns": c.columns() if c.kind == "limit" else [f"{r}_{comp}" for r in RAILS
-                                                                                 for comp in ("vertical", "lateral")],
-                              "levels_mm": dict(c.levels())} for c in checks],
-        "exceedances": exceedances,
-        "skipped_checks": skipped,
-    }
-    metrics["quality_index"] = _quality_index(table, cfg, design is not None, step_m)
-    if method == "curvature_matching":
-        metrics["curvature_matching_anchors"] = [[{"s_app_m": a, "chainage_m": d} for a, d in p] for p in anchors]
-    if di_series:
-        metrics["deformation_index"] = {
-            "threshold_deg_per_m": cfg.deformation_index.threshold_deg_per_m,
-            "v_min_mps": cfg.deformation_index.v_min_mps,
-            "defects": merge_defects(di_defects, cfg.deformation_index.merge_m),
-            "defects_per_pass": [[d.to_json() for d in ds] for ds in di_defects]}
-    metrics["dominant_wavelengths_m"] = {
-        col: spatial_spectrum(table[col], step_m).dominant_m
-        for col in ("left_vertical_mm", "right_vertical_mm", "di_deg_per_m") if col in table and table[col].size >= 64}
-    if len(tables) >= 2:
-        metrics["repeatability"] = _repeatability(tables, cfg, step_m)
-    table.pop("t_s", None)
-    units = _units(table)
-    return GeometryResult(table, units, metrics, tables, used, di_series)
+    for tr in passes.traces:
+        m = (t_s >= tr.t_s.min()) & (t_s <= tr.t_s.max())
+        s_di = np.interp(t_s[m], tr.t_s[np.argsort(tr.t_s)], tr.chainage_m[np.argsort(tr.t_s)])
+        di_series.append((s_di, di[m]))
+        di_defects.append(detect_defects(s_di, di[m], dcfg.threshold_deg_per_m, dcfg.merge_m))
+    column = _mean_over_passes(
+        [{"chainage_m": t["chainage_m"], "left_e_m": t["left_e_m"],
+          "di_deg_per_m": np.interp(t["chainage_m"], *_sorted(*ser))} for t, ser in zip(passes.tables, di_series)],
+        step_m)["di_deg_per_m"]
+    metrics = {"threshold_deg_per_m": dcfg.threshold_deg_per_m, "v_min_mps": dcfg.v_min_mps,
+               "defects": merge_defects(di_defects, dcfg.merge_m),
+               "defects_per_pass": [[d.to_json() for d in ds] for ds in di_defects]}
+    return di_series, column, metrics
 
 
 def _quality_index(table: dict[str, np.ndarray], cfg: GeometryConfig, with_design: bool, step_m: float) -> dict:

@@ -30,6 +30,8 @@ real trolley, whose flange play and wheel wear add to this rigid-trolley figure.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy import integrate
 
@@ -117,20 +119,33 @@ def _rail_psd(axis: str, omega_radpm: np.ndarray, spectrum: str, components: tup
                if components is None or c in components)
 
 
+@dataclass(frozen=True)
+class RailSpectrum:
+    """The reference rail's irregularity spectrum: the German ``spectrum``, its band
+    ``wavelength_min_m`` .. ``wavelength_max_m`` [m], ``scale`` multiplying the amplitude, and the
+    German ``components`` present (None: all four), as in
+    :class:`trackfusion.simulation.irregularity.PsdConfig`."""
+
+    spectrum: str = "german_low"
+    wavelength_min_m: float = 1.0
+    wavelength_max_m: float = 200.0
+    scale: float = 1.0
+    components: tuple[str, ...] | None = None
+
+
 def equivalent_white_sigma_mps(freq_hz, axis: str, speed_mps: float, wheelbase_m: float, keyframe_dt_s: float,
-                               spectrum: str = "german_low", wavelength_min_m: float = 1.0,
-                               wavelength_max_m: float = 200.0, scale: float = 1.0,
-                               components: tuple[str, ...] | None = None) -> np.ndarray:
+                               rail: RailSpectrum = RailSpectrum()) -> np.ndarray:
     """Sigma [m/s] of keyframe-spaced white NHC noise whose PSD equals the violation's at ``freq_hz``.
 
     The violation's one-sided PSD in time is ``P(f) = v^2 S(Omega) H(Omega)^2 2 pi / v`` with
-    ``Omega = 2 pi f / v``; white samples of sigma ``s`` every ``dt`` have ``2 s^2 dt``. Zero
-    outside the irregularity band. Returns an array of the shape of ``freq_hz``.
+    ``Omega = 2 pi f / v`` (``S`` the ``rail`` spectrum); white samples of sigma ``s`` every
+    ``dt`` have ``2 s^2 dt``. Zero outside the irregularity band. Returns an array of the shape
+    of ``freq_hz``.
     """
     f = np.asarray(freq_hz, dtype=float)
     omega = 2 * np.pi * f / speed_mps
-    band = (omega >= 2 * np.pi / wavelength_max_m) & (omega <= 2 * np.pi / wavelength_min_m)
-    psd = np.where(band, _rail_psd(axis, omega, spectrum, components), 0.0) * scale**2
+    band = (omega >= 2 * np.pi / rail.wavelength_max_m) & (omega <= 2 * np.pi / rail.wavelength_min_m)
+    psd = np.where(band, _rail_psd(axis, omega, rail.spectrum, rail.components), 0.0) * rail.scale**2
     p_time = speed_mps**2 * psd * rigid_trolley_transfer(omega, wheelbase_m) ** 2 * 2 * np.pi / speed_mps
     return np.sqrt(p_time / (2.0 * keyframe_dt_s))
 
@@ -145,12 +160,12 @@ def informed_band_sigma_mps(axis: str, speed_mps: float, wheelbase_m: float, key
     decides and the NHC's noise model hardly matters. So ``s`` must cover the violation's
     equivalent white sigma (:func:`equivalent_white_sigma_mps`) at every ``f <= f_c(s)``: the
     smallest such ``s`` (a unique fixed point: the bound falls as ``s`` grows), found by
-    bisection. ``psd``: the spectrum arguments of :func:`equivalent_white_sigma_mps`.
+    bisection. ``psd``: the fields of :class:`RailSpectrum`.
     Returns ``{"sigma_mps", "crossover_hz", "crossover_wavelength_m"}``.
     """
     q = (accel_vrw_mps_per_sqrt_h / 60.0) ** 2
     f_grid = np.geomspace(1e-4, 0.5 / keyframe_dt_s, 4000)
-    sig_eq = equivalent_white_sigma_mps(f_grid, axis, speed_mps, wheelbase_m, keyframe_dt_s, **psd)
+    sig_eq = equivalent_white_sigma_mps(f_grid, axis, speed_mps, wheelbase_m, keyframe_dt_s, RailSpectrum(**psd))
     running_max = np.maximum.accumulate(sig_eq)
 
     def bound(s: float) -> float:

@@ -19,7 +19,7 @@ normal to the contact plane. With ``R_nv = R_nb R_vb^T`` and the IMU at ``lever_
 Each pass (a run in one direction between stops) is resampled on the chainage grid
 ``k * step_m`` (linear interpolation of the IMU-rate samples), so repeated passes line up.
 The gauge readings of each pass are smoothed along chainage by the Wiener smoother of
-:mod:`.gauge` (or averaged over a window, ``gauge_filter="box"``).
+:mod:`.gauge` (or averaged over a window, ``GaugeSmoothing(filter="box")``).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ..errors import TrackGeometryError
+from ..sensors.types import GaugeData
 from .gauge import MIN_READINGS, fit_gauge_spectrum, smooth_gauge
 
 
@@ -46,6 +47,37 @@ class TrolleyGeometry:
     @property
     def other_rail(self) -> str:
         return "right" if self.reference_rail == "left" else "left"
+
+
+@dataclass(frozen=True)
+class TrajectoryOnTrack:
+    """The dense smoothed trajectory with its chainage: ``t_s`` (N,) [s], ``R_nb`` (N, 3, 3),
+    ``pos_n`` (N, 3) [m], ``chainage_m`` (N,) [m] of the trolley frame ``v``'s origin.
+    ``absolute_positions``: the positions are georeferenced (GNSS), so they can be projected
+    onto a design alignment (``geometry.chainage: auto``)."""
+
+    t_s: np.ndarray
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+    chainage_m: np.ndarray
+    absolute_positions: bool = True
+
+    def select(self, sel) -> "TrajectoryOnTrack":
+        """The samples ``sel`` (a slice over the N samples)."""
+        return TrajectoryOnTrack(self.t_s[sel], self.R_nb[sel], self.pos_n[sel], self.chainage_m[sel],
+                                 self.absolute_positions)
+
+
+@dataclass(frozen=True)
+class GaugeSmoothing:
+    """How each pass's gauge readings become its gauge (:func:`gauge_along_pass`): ``filter``
+    ``"wiener"`` or ``"box"``, the reading noise ``sigma_m`` [m] (None: fitted), the box width
+    ``window_m`` [m] (None: one grid step); ``nominal_gauge_m`` [m] without gauge readings."""
+
+    nominal_gauge_m: float = 1.435
+    filter: str = "wiener"
+    window_m: float | None = None
+    sigma_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -151,15 +183,15 @@ def _on_grid(s: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
     return out
 
 
-def pass_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
-                trolley: TrolleyGeometry, gauge_m: np.ndarray, step_m: float, direction: int = 1,
-                crossover_m: float | None = None) -> RailTraces:
+def pass_traces(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, gauge_m: np.ndarray, step_m: float,
+                direction: int = 1, crossover_m: float | None = None) -> RailTraces:
     """Rail traces of one pass (module docstring).
 
-    t_s (M,) [s], R_nb (M, 3, 3), pos_n (M, 3) [m], chainage_m (M,) [m] of ``v``'s origin,
-    gauge_m (M,) [m] gauge at each sample (reading or nominal), step_m [m] grid step;
-    crossover_m: combine with the attitude (:func:`refine_with_attitude`), or None.
+    traj: the pass's M samples (:class:`TrajectoryOnTrack`), gauge_m (M,) [m] gauge at each
+    sample (reading or nominal), step_m [m] grid step; crossover_m: combine with the attitude
+    (:func:`refine_with_attitude`), or None.
     """
+    t_s, R_nb, pos_n, chainage_m = traj.t_s, traj.R_nb, traj.pos_n, traj.chainage_m
     R_nv = R_nb @ trolley.R_vb.T
     origin = pos_n - R_nv @ np.asarray(trolley.lever_arm_imu_v, dtype=float)
     half = 0.5 * trolley.wheelbase_m
@@ -215,35 +247,31 @@ def gauge_along_pass(s_reading_m: np.ndarray, reading_m: np.ndarray, s_query_m: 
     return box_mean(s_reading_m, reading_m, s_query_m, window_m), info
 
 
-def rail_traces(t_s: np.ndarray, R_nb: np.ndarray, pos_n: np.ndarray, chainage_m: np.ndarray,
-                trolley: TrolleyGeometry, step_m: float, gauge_t_s: np.ndarray | None = None,
-                gauge_reading_m: np.ndarray | None = None, nominal_gauge_m: float = 1.435,
-                min_speed_mps: float = 0.05, min_length_m: float = 1.0,
-                crossover_m: float | None = None, gauge_window_m: float | None = None,
-                gauge_filter: str = "wiener", gauge_sigma_m: float | None = None) -> list[RailTraces]:
-    """Rail traces of every pass of a dense trajectory (module docstring); arrays as in
-    :func:`pass_traces` over the whole run; the gauge reading (K,) at ``gauge_t_s`` (K,) is
-    smoothed per pass by :func:`gauge_along_pass` (``gauge_filter``, ``gauge_sigma_m`` [m],
-    ``gauge_window_m``, default one step), or ``nominal_gauge_m`` without it; ``crossover_m``:
-    see :func:`refine_with_attitude`."""
+def rail_traces(traj: TrajectoryOnTrack, trolley: TrolleyGeometry, step_m: float, gauge: GaugeData | None = None,
+                smoothing: GaugeSmoothing = GaugeSmoothing(), min_speed_mps: float = 0.05, min_length_m: float = 1.0,
+                crossover_m: float | None = None) -> list[RailTraces]:
+    """Rail traces of every pass of a dense trajectory (module docstring); ``traj`` as in
+    :func:`pass_traces` over the whole run; the gauge readings ``gauge`` (K,) are smoothed per
+    pass by :func:`gauge_along_pass` (``smoothing``), or ``smoothing.nominal_gauge_m`` without
+    them; ``crossover_m``: see :func:`refine_with_attitude`."""
+    t_s, chainage_m = traj.t_s, traj.chainage_m
     passes = split_passes(t_s, chainage_m, min_speed_mps, min_length_m)
     if not passes:
         raise TrackGeometryError(f"the trajectory has no pass of at least {min_length_m:g} m in motion")
-    gauge = np.full(t_s.shape, float(nominal_gauge_m))
+    gauge_m = np.full(t_s.shape, float(smoothing.nominal_gauge_m))
     filters: list[dict] = [{} for _ in passes]
-    if gauge_t_s is not None and gauge_t_s.size >= 2:
-        s_reading = np.interp(gauge_t_s, t_s, chainage_m)
+    if gauge is not None and gauge.t_s.size >= 2:
+        s_reading = np.interp(gauge.t_s, t_s, chainage_m)
         for k, p in enumerate(passes):
-            inside = (gauge_t_s >= t_s[p.start]) & (gauge_t_s <= t_s[p.stop - 1])
+            inside = (gauge.t_s >= t_s[p.start]) & (gauge.t_s <= t_s[p.stop - 1])
             if np.count_nonzero(inside) < 2:
                 raise TrackGeometryError(f"no gauge readings between t = {t_s[p.start]:.1f} and {t_s[p.stop - 1]:.1f} s")
-            gauge[p.start:p.stop], filters[k] = gauge_along_pass(
-                s_reading[inside], gauge_reading_m[inside], chainage_m[p.start:p.stop], gauge_filter,
-                gauge_window_m or step_m, gauge_sigma_m)
+            gauge_m[p.start:p.stop], filters[k] = gauge_along_pass(
+                s_reading[inside], gauge.gauge_m[inside], chainage_m[p.start:p.stop], smoothing.filter,
+                smoothing.window_m or step_m, smoothing.sigma_m)
     out = []
     for p, info in zip(passes, filters):
-        tr = pass_traces(t_s[p.start:p.stop], R_nb[p.start:p.stop], pos_n[p.start:p.stop],
-                         chainage_m[p.start:p.stop], trolley, gauge[p.start:p.stop], step_m, p.direction,
+        tr = pass_traces(traj.select(slice(p.start, p.stop)), trolley, gauge_m[p.start:p.stop], step_m, p.direction,
                          crossover_m)
         tr.gauge_filter = info
         out.append(tr)
