@@ -7,7 +7,9 @@
 - no file I/O (``open``, reads and writes of files, ``savefig``, ``yaml.safe_load``) in the
   pure core packages ``fusion/``, ``registration/`` and ``track/``;
 - concurrency (``multiprocessing``, ``concurrent.futures``, ``threading``, ``dask``,
-  ``distributed``, ``os.fork``) only in the concurrency modules ``forked`` and ``parallel``.
+  ``distributed``, ``os.fork``) only in the concurrency modules ``forked`` and ``parallel``;
+- functions a reader can hold: none over :data:`MAX_LINES` lines (its docstring not counted) or
+  :data:`MAX_PARAMETERS` parameters (``self`` / ``cls`` not counted).
 
 The ``ALLOWED_*`` lists name what is still there, each with the reason; they are meant to be
 emptied (a listed entry that no longer occurs fails too, so the lists cannot go stale).
@@ -45,6 +47,11 @@ CONCURRENCY_MODULES = {"trackfusion.forked", "trackfusion.parallel"}
 
 #: modules outside CONCURRENCY_MODULES that start processes or threads themselves, and why
 ALLOWED_CONCURRENCY: dict[str, str] = {}
+
+MAX_LINES = 60
+MAX_PARAMETERS = 8
+#: "module.qualified_name" of functions still over either limit, and why
+ALLOWED_LARGE_FUNCTIONS: dict[str, str] = {}
 
 _CONCURRENCY_IMPORTS = ("multiprocessing", "concurrent", "threading", "_thread", "dask", "distributed")
 _FORK_CALLS = {"os.fork", "os.forkpty"}
@@ -248,3 +255,42 @@ def test_concurrency_only_in_the_concurrency_modules():
     assert found - CONCURRENCY_MODULES == set(ALLOWED_CONCURRENCY), {m: sorted(_concurrency(m)) for m in found - CONCURRENCY_MODULES}
     assert CONCURRENCY_MODULES <= found  # the check sees them where they are
     assert "os.fork" in _concurrency("trackfusion.forked")
+
+
+def _function_sizes(source: str) -> dict[str, tuple[int, int]]:
+    """``qualified name -> (lines without the docstring, parameters without self / cls)`` of
+    every function and method in ``source``."""
+    out = {}
+
+    def visit(node: ast.AST, prefix: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                a = child.args
+                params = [*a.posonlyargs, *a.args, *a.kwonlyargs, *filter(None, (a.vararg, a.kwarg))]
+                n_params = len(params) - (1 if params and params[0].arg in ("self", "cls") and a.args else 0)
+                lines = child.end_lineno - child.lineno + 1
+                first = child.body[0]
+                if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+                    lines -= first.end_lineno - first.lineno + 1
+                out[prefix + child.name] = (lines, n_params)
+                visit(child, prefix + child.name + ".")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, prefix + child.name + ".")
+
+    visit(ast.parse(source), "")
+    return out
+
+
+def test_the_size_reader_counts_lines_and_parameters():
+    source = ("class C:\n    def f(self, a, *b, c, **d):\n        \"\"\"doc\n        more\"\"\"\n"
+              "        def g(x):\n            return x\n        return g(a)\n\n"
+              "def h(p, q=1):\n    return p\n")
+    assert _function_sizes(source) == {"C.f": (4, 4), "C.f.g": (2, 1), "h": (2, 2)}
+
+
+def test_functions_a_reader_can_hold():
+    found = {f"{m}.{name}": size for m in MODULES
+             for name, size in _function_sizes(MODULES[m][0].read_text(encoding="utf-8")).items()
+             if size[0] > MAX_LINES or size[1] > MAX_PARAMETERS}
+    assert set(found) == set(ALLOWED_LARGE_FUNCTIONS), {k: f"{v[0]} lines, {v[1]} parameters" for k, v in found.items()
+                                                        if k not in ALLOWED_LARGE_FUNCTIONS}
