@@ -1053,26 +1053,28 @@ class _Gates:
     def labels(self) -> dict[str, np.ndarray]:
         return _component_labels(self.prisms, self.prism_used)
 
-    def gate(self, prism_build, gnss_build, sol: "_Solved", b: _Builder, values: gtsam.Values) -> bool:
+    def gate(self, prism_build, gnss_build, sol: "_Solved", b: _Builder, values: gtsam.Values) -> tuple[bool, bool]:
         """Gate the prism readings (mis-lock runs) and GNSS fixes at the solve ``sol``, with the
         builders of their factors (None: none); rejected fixes lose their error state in
-        ``values``. Whether any was rejected (or the GNSS noise needs a refit)."""
+        ``values``. Whether any was rejected, and whether the GNSS white noise needs a refit."""
         fs = b.pb.factors
-        newly_rejected = False
+        rejected = refit = False
         if prism_build is not None:  # total stations: gate, mis-lock runs
             self.prism_used, newly = gate_prisms(prism_build(sol.state), self.prism_used, self.prisms,
                                                  fs.total_stations)
             self.rejected_prism += newly
-            newly_rejected = bool(newly)
+            rejected = bool(newly)
         if gnss_build is not None:
-            newly_rejected |= self._gate_gnss(gnss_build(sol.state), sol, b.gnss_white(self.used), values, fs.gnss)
-        return newly_rejected
+            gnss_rejected, refit = self._gate_gnss(gnss_build(sol.state), sol, b.gnss_white(self.used), values, fs.gnss)
+            rejected |= gnss_rejected
+        return rejected, refit
 
     def _gate_gnss(self, blocks: fx.LinearBlocks, sol: "_Solved", white: np.ndarray, values: gtsam.Values,
-                   st) -> bool:
+                   st) -> tuple[bool, bool]:
         """The GNSS gate on the position factors' ``blocks`` at ``sol``, the used fixes' stated white
         covariances ``white`` (F,3,3) [m^2] and the settings ``st`` (``factors.gnss``); with
-        ``estimate_white_noise``, on the noise the residuals show."""
+        ``estimate_white_noise``, on the noise the residuals show. Whether a fix was rejected, and
+        whether the white noise's factor moved (a refit)."""
         refit = False
         if st.estimate_white_noise:
             self.noise = gnss_noise.estimate_white_noise(blocks, white, self.white_factor, sol.tree,
@@ -1086,7 +1088,7 @@ class _Gates:
             if values.exists(E(int(i))):
                 values.erase(E(int(i)))
         self.used = self.used[~bad]
-        return refit | bool(np.any(bad))
+        return bool(np.any(bad)), refit
 
     def final_noise(self, say: Callable[[str], None]) -> "gnss_noise.GnssNoiseEstimate | None":
         """The GNSS white-noise estimate with the factor of the last solve (a refit the rounds ran
@@ -1144,10 +1146,12 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         sol = gauss_newton(G, values, b.kf.with_scale, round_stop, say, partition=partition)
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
-        newly_rejected = gates.gate(prism_build, gnss_build, sol, b, values)
-        if components is not None and not newly_rejected:
-            newly_rejected = _estimate_components(components, G, sol, gates.labels())
-        if not newly_rejected:
+        rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
+        # the groups' noise from the same solve as the GNSS white noise's (one round for both,
+        # as Helmert's estimate takes every component at once); not while readings were rejected
+        if components is not None and not rejected:
+            refit |= _estimate_components(components, G, sol, gates.labels())
+        if not (rejected or refit):
             if gates.gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
                 sol = gauss_newton(G, values, b.kf.with_scale, stop, say, sol, partition)
                 iterations += sol.iterations
