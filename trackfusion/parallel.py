@@ -7,11 +7,11 @@ pool and threads) the only module that forks, starts pools or threads, or import
 
 The smoother's time parts on local workers: in one Gauss-Newton step with ``W`` workers, the
 parts are dealt into ``W`` contiguous groups; group 0 is worked on in this process, each other
-group in a child forked after the linearisation (it reads the linearised graph from the
-parent's memory as it was at the fork, nothing of it pickled). A child reduces its parts and sends back only their reduced factors on
-the separator, waits for the separator's solution, back-substitutes its parts and sends back
-their steps, and exits. The numbers do not depend on ``W``: each part is reduced and
-back-substituted the same way wherever it runs.
+group in a child forked after the linearisation (it reads the linearised graph from the parent's
+memory as it was at the fork, nothing of it pickled). A child reduces its parts and sends back
+only their reduced factors on the separator, waits for the separator's solution, back-
+substitutes its parts and sends back their steps, and exits. The numbers do not depend on ``W``:
+each part is reduced and back-substituted the same way wherever it runs.
 
 A child that dies (killed, out of memory) ends the step with :class:`PartWorkerDied` naming
 its parts; every child has exited when a step returns or raises.
