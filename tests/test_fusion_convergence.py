@@ -10,8 +10,8 @@ import pytest
 from trackfusion.fusion import convergence as C
 
 
-def _history(steps_m):
-    h = C.StepHistory()
+def _history(steps_m, warm=False):
+    h = C.StepHistory(warm=warm)
     p = np.zeros((4, 3))
     for s in steps_m:
         q = p.copy()
@@ -31,6 +31,17 @@ def test_no_claim_before_three_steps_or_when_slow():
     assert _history([1.0, 1e-6]).remaining_m() == np.inf  # one ratio: could be the first step's
     assert _history([1e-3, 6e-4, 3e-4]).remaining_m() == np.inf  # rho above RHO_MAX
     assert _history([1e-3, 1e-4, 0.0]).remaining_m() == 0.0
+
+
+def test_two_steps_enough_from_a_converged_start():
+    """A refit round starts at the converged estimate: its first step is the new weights'
+    response, not a coarse start's, so its ratio to the second counts."""
+    h = _history([1e-3, 1e-4], warm=True)
+    assert h.remaining_m() == pytest.approx(1e-4 * 0.1 / 0.9)
+    assert h.copy().warm and h.copy().remaining_m() == h.remaining_m()
+    assert _history([1e-3], warm=True).remaining_m() == np.inf
+    assert _history([1e-3, 6e-4], warm=True).remaining_m() == np.inf  # rho above RHO_MAX
+    assert _history([1.0, 1e-3, 1e-4], warm=True).remaining_m() == pytest.approx(1e-4 * 0.1 / 0.9)
 
 
 def test_default_tolerance():

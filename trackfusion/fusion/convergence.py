@@ -12,7 +12,10 @@ for the last 0.008 mm); this rule stops as soon as the predicted tail is below
 
 ``rho`` is estimated as the larger of the last two step ratios, so that the first step (from
 the coarse initial estimate, metres) never makes the second look converged: the rule needs
-three accepted steps, and claims nothing while ``rho`` is above :data:`RHO_MAX`.
+three accepted steps, and claims nothing while ``rho`` is above :data:`RHO_MAX`. A solve that
+starts at the converged estimate of the same graph with other noise weights (a noise refit
+round, ``warm``) has no coarse first step: its first step is the weights' linear response, and
+the ratio of its two steps already measures ``rho`` (two steps are enough).
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ class StepHistory:
     """Largest keyframe position change [m] of each accepted Gauss-Newton step, in order."""
 
     steps_m: list[float] = field(default_factory=list)
+    #: the first step starts at the converged estimate of the same graph reweighted (module docstring)
+    warm: bool = False
 
     def add(self, pos_before_n: np.ndarray, pos_after_n: np.ndarray) -> None:
         """Record one accepted step between keyframe positions (K,3) [m]."""
@@ -40,20 +45,21 @@ class StepHistory:
 
     def remaining_m(self) -> float:
         """Predicted correction still to come [m] (the geometric tail), inf when it cannot be
-        estimated (fewer than three steps, or a step ratio above :data:`RHO_MAX`)."""
-        if len(self.steps_m) < 3:
+        estimated (fewer than three steps, two when :attr:`warm`, or a step ratio above
+        :data:`RHO_MAX`)."""
+        if len(self.steps_m) < (2 if self.warm else 3):
             return np.inf
-        s0, s1, s2 = self.steps_m[-3:]
-        if s2 == 0.0:
+        last = self.steps_m[-3:]
+        if last[-1] == 0.0:
             return 0.0
-        if s0 <= 0.0 or s1 <= 0.0:
+        if min(last[:-1]) <= 0.0:
             return np.inf
-        rho = max(s2 / s1, s1 / s0)
-        return s2 * rho / (1.0 - rho) if rho < RHO_MAX else np.inf
+        rho = max(b / a for a, b in zip(last[:-1], last[1:]))
+        return last[-1] * rho / (1.0 - rho) if rho < RHO_MAX else np.inf
 
     def converged(self, tolerance_m: float) -> bool:
         """True when the predicted remaining correction is below ``tolerance_m`` (> 0)."""
         return tolerance_m > 0.0 and self.remaining_m() < tolerance_m
 
     def copy(self) -> "StepHistory":
-        return StepHistory(list(self.steps_m))
+        return StepHistory(list(self.steps_m), self.warm)

@@ -657,20 +657,21 @@ class StopRule:
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRule, say: Callable[[str], None],
-                 previous: _Solved | None = None, partition: "Partition | None" = None) -> _Solved:
+                 previous: _Solved | None = None, partition: "Partition | None" = None, warm: bool = False) -> _Solved:
     """Gauss-Newton with step halving (see :class:`_Solved`), until ``stop`` (:class:`StopRule`).
     ``previous``: the solve of the same graph that ended at ``values``
     (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
     and when its steps have converged already its tree is returned without a new iteration.
     ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
-    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`)."""
+    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`). ``warm``: ``values`` is
+    the converged estimate of this graph with other noise weights (fusion/convergence.py)."""
     state = previous.state if previous is not None else _State.of(values, with_scale)
     blocks = None if previous is not None else []  # the vectorised factors' blocks at ``values``
     cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state, blocks)
     it = 0
     tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, None)
     gfg = previous.gfg if previous is not None else None
-    history = previous.history.copy() if previous is not None else StepHistory()
+    history = previous.history.copy() if previous is not None else StepHistory(warm=warm)
     if history.converged(stop.step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history, gfg)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
@@ -1138,12 +1139,15 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
     # a gating round need not converge to the last digit before its gate: the tolerance is
     # tightened once the gate rejects nothing more (below)
     round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE)) if gates.gating else stop
-    iterations, cost0 = 0, None
+    iterations, cost0, reweighted = 0, None, False
     for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         G, gnss_build, prism_build = _round_graph(b, base, values, gates, components)
         say(f"solving: {b.t.size} keyframes, {sum(b.counts.values())} factors"
             + (f" (gating round {round_ + 1})" if gates.gating else ""))
-        sol = gauss_newton(G, values, b.kf.with_scale, round_stop, say, partition=partition)
+        # a round that only reweights the last one's graph starts at its solution: one step
+        # moves it to the new weights' (the next one is ~1e-5 of it: docs/solver_speed.md)
+        this_stop = replace(round_stop, max_iterations=1) if reweighted else round_stop
+        sol = gauss_newton(G, values, b.kf.with_scale, this_stop, say, partition=partition, warm=reweighted)
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
@@ -1152,10 +1156,11 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         if components is not None and not rejected:
             refit |= _estimate_components(components, G, sol, gates.labels())
         if not (rejected or refit):
-            if gates.gating:  # the gate is settled: converge to the configured tolerance (the same graph: carry on)
+            if gates.gating or reweighted:  # settled: converge to the configured tolerance (the same graph: carry on)
                 sol = gauss_newton(G, values, b.kf.with_scale, stop, say, sol, partition)
                 iterations += sol.iterations
             break
+        reweighted = not rejected
     return _Rounds(sol, G, iterations, cost0)
 
 
