@@ -2,7 +2,7 @@
 given the datasheet only; against the same draws processed with the true noise configured.
 
 Usage: python benchmarks/mismatch.py [--seeds 1 2 3] [--scenarios open-track-gnss bridge-total-station]
-       [--work DIR]
+       [--work DIR] [--out JSON]
 
 Per scenario and seed, factors ``k`` (log-uniform in 0.5-2, from the seed; printed) scale the
 simulated IMU white noise (gyro, accelerometer), the GNSS white and correlated parts, the odometer
@@ -19,7 +19,8 @@ sigma (``gnss.stated_sigma_factor = 1 / k``), and 5 % of its fixes are gross err
 
 The short surveys (tests/surveys.py's ``open-track-gnss``; the bridge's first 200 m out and
 100 m back, one station). Figures: 5 m vertical / lateral MSE (datasheet over true), pooled
-RMS(error / sigma) per ENU axis, GNSS fixes rejected against those truly outside the gate,
+RMS(error / sigma) per ENU axis (with its effective independent samples and the 95 % interval
+for honest sigmas, evaluation/consistency.py), GNSS fixes rejected against those truly outside the gate,
 the estimated GNSS white / correlated, odometer and NHC sigmas over the drawn ones (the NHC's:
 the top speed's RMS violation scaled to the survey's RMS speed; the odometer's: the RMS error
 its increments between keyframes carry, :func:`realized_odometer_mm`).
@@ -182,6 +183,7 @@ def run_one(d: Path, name: str, cfg: dict) -> dict:
     from gnss_noise import GATE_CHI2
     from surveys import errors_against_truth
     from trackfusion import pipeline as P
+    from trackfusion.evaluation.consistency import consistency_of
     from trackfusion.sensors.fileio import read_csv_table
     path = d / f"{name}.yaml"
     path.write_text(yaml.safe_dump(cfg))
@@ -194,6 +196,7 @@ def run_one(d: Path, name: str, cfg: dict) -> dict:
            "lateral_mse_5m_mm": ra["lateral"]["mse_at_threshold_mm"],
            "sum_z2": np.sum((err / sig) ** 2, axis=0).tolist(), "samples": int(err.shape[0]),
            "rms_z": np.sqrt(np.mean((err / sig) ** 2, axis=0)).tolist(),
+           "consistency": [dict(consistency_of(z), samples=int(z.size)) for z in (err / sig).T],
            "rejected_gnss": len(m["rejected_gnss"]), "noise_estimates": m.get("noise_estimates", {})}
     truth = json.loads((d / "truth.json").read_text())
     if "gnss" in truth.get("errors", {}):
@@ -225,6 +228,7 @@ def ratios(est: dict, drawn: dict) -> dict:
 
 
 def run_scenario(scenario: str, seeds: list[int]) -> dict:
+    from trackfusion.evaluation.consistency import pooled
     out: dict = {"seeds": {}}
     for seed in seeds:
         d, d_true = survey(scenario, seed, False), survey(scenario, seed, True)
@@ -248,19 +252,24 @@ def run_scenario(scenario: str, seeds: list[int]) -> dict:
         z2 = np.sum([out["seeds"][s][case]["sum_z2"] for s in seeds], axis=0)
         n = sum(out["seeds"][s][case]["samples"] for s in seeds)
         out[f"rms_z_pooled_{case}"] = np.sqrt(z2 / n).tolist()
+        out[f"consistency_pooled_{case}"] = [pooled([out["seeds"][s][case]["consistency"][axis] for s in seeds])
+                                             for axis in range(3)]
     print(f"{scenario} pooled RMS(error/sigma) e/n/u: datasheet {np.round(out['rms_z_pooled_datasheet'], 2)}, "
-          f"true {np.round(out['rms_z_pooled_true'], 2)}")
+          f"true {np.round(out['rms_z_pooled_true'], 2)}; independent samples e/n/u "
+          f"{[round(c['n_eff'], 1) for c in out['consistency_pooled_datasheet']]}, 95 % intervals for honest sigmas "
+          f"{[np.round(c['interval_95'], 2).tolist() for c in out['consistency_pooled_datasheet']]}")
     return out
 
 
 def main() -> None:
+    global CACHE, RESULTS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="*", default=[1, 2, 3])
     ap.add_argument("--scenarios", nargs="*", default=["open-track-gnss", "bridge-total-station"])
     ap.add_argument("--work", type=Path, default=None)
+    ap.add_argument("--out", type=Path, default=RESULTS, help="the JSON written (default: results/mismatch.json)")
     args = ap.parse_args()
-    global CACHE
-    CACHE = args.work or CACHE
+    CACHE, RESULTS = args.work or CACHE, args.out
     old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
     old["machine"] = "2 cores shared with other agents"
     for scenario in args.scenarios:
