@@ -1,10 +1,11 @@
 """Benchmark: the exact time parts (``smoother.part_s``, fusion/partitioned.py) against one batch.
 
-Usage: python benchmarks/parts.py [--seeds 1 2 3] [--part-s 600] [--workers 1 2 4] [--default-only] [--out FILE]
+Usage: python benchmarks/parts.py [--seeds 1 2 3] [--part-s 600] [--workers 1 2 4] [--dask] [--default-only] [--out FILE]
 For each seed, the ``open-track-gnss`` survey (as simulated, 44 min at 200 Hz, wheel path on)
 is run with the default configuration (one batch on any machine), with ``smoother.workers: 1``
 (one batch, said explicitly) and in parts of ``--part-s`` seconds in each number of
-``--workers`` local processes. Prints and writes benchmarks/results/parts.json: per run the
+``--workers`` local processes (with ``--dask`` also on a Dask ``LocalCluster`` of 2 worker
+processes, ``smoother.engine: dask``). Prints and writes benchmarks/results/parts.json: per run the
 largest position difference of trajectory.csv (%.12g: 10 nm at these coordinates) from the
 default's, the 5 m vertical MSE / ADEV and the whole run's wall time (``run_time_s``; the
 machine's load is written beside it: it is shared, so the times are indicative only).
@@ -69,6 +70,7 @@ def main() -> None:
     ap.add_argument("--default-only", action="store_true")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--smoother", action="store_true")
+    ap.add_argument("--dask", action="store_true", help="also the parts on a Dask LocalCluster of 2 workers")
     args = ap.parse_args()
     if args.smoother:
         smoother_only(args.seeds[0], args.part_s, args.workers, RESULTS.with_name("parts_smoother.json"))
@@ -79,6 +81,9 @@ def main() -> None:
         runs = {"default": {}} if args.default_only else {"default": {}, "one batch": {"smoother": {"workers": 1}}}
         for w in [] if args.default_only else args.workers:
             runs[f"parts of {args.part_s:g} s, {w} workers"] = {"smoother": {"part_s": args.part_s, "workers": w}}
+        if args.dask and not args.default_only:
+            runs[f"parts of {args.part_s:g} s, Dask LocalCluster of 2 workers"] = {
+                "smoother": {"part_s": args.part_s, "workers": 2, "engine": "dask"}}
         ref = None
         for label, change in runs.items():
             load = os.getloadavg()[0]
@@ -95,6 +100,8 @@ def main() -> None:
     default = [r for r in rows if r["run"] == "default"]
     summary = {
         "largest_position_difference_um": max(r["max_position_difference_um"] for r in rows),
+        "dask_largest_position_difference_um": max((r["max_position_difference_um"] for r in rows
+                                                    if "Dask" in r["run"]), default=None),
         "default_vertical_mse_adev_5m_mm_mean": [float(np.mean([r["vertical_mse_5m_mm"] for r in default])),
                                                  float(np.mean([r["vertical_adev_5m_mm"] for r in default]))],
         "default_vertical_mse_adev_5m_mm_worst": [max(r["vertical_mse_5m_mm"] for r in default),
