@@ -74,7 +74,8 @@ def summary(runs: list[dict]) -> dict:
     out = {}
     for ref in ("none", "design"):
         e = np.array([r[f"cross_level_rms_error_mm_{ref}"] for r in runs])
-        out[ref] = {"worst_mm": float(e.max()), "rms_over_seeds_mm": rms(e), "seeds_within_0p3_mm": int((e <= 0.3).sum())}
+        out[ref] = {"worst_mm": float(e.max()), "rms_over_seeds_mm": rms(e),
+                    "seeds_within_0p3_mm": int((e <= 0.3).sum())}
     out["truth_mean_rms_over_seeds_mm"] = rms(np.array([r["truth_cross_level_mean_mm"] for r in runs]))
     return out
 

@@ -107,7 +107,8 @@ def no_reference(sim: Path, t: dict, ref: dict) -> dict:
     cross-level over the frames it used."""
     text = (sim / "pipeline.yaml").read_text()
     assert "cross_level_reference: design" in text
-    (sim / "pipeline_none.yaml").write_text(text.replace("cross_level_reference: design", "cross_level_reference: none"))
+    (sim / "pipeline_none.yaml").write_text(text.replace("cross_level_reference: design",
+                                                         "cross_level_reference: none"))
     r = run(load_pipeline(sim / "pipeline_none.yaml"), sim / "out_none")
     g = _table(sim / "out_none" / "geometry.csv")
     design = _table(sim / "out" / "geometry.csv")
@@ -115,9 +116,11 @@ def no_reference(sim: Path, t: dict, ref: dict) -> dict:
     used = np.isfinite(g["cross_level_mm"])
     keys = ("cross_level_rms_error_mm", "cross_level_mean_error_mm", "cross_level_sd_error_mm", "roll_rms_error_deg",
             "alignment_d1_rms_error_mm", "vertical_profile_d1_rms_error_mm")
+    roll_error = np.radians(g["roll_rel_deg"] - t["roll_rel_deg"])
     return {"no_reference": {k: fig[k] for k in keys},
-            "same_gauge_and_wear": all(np.array_equal(g[c], design[c], equal_nan=True) for c in g if c.startswith(("gauge", "wear"))),
-            "cross_level_reference": {**ref, "true_roll_error_mean_urad": float(np.mean(np.radians(g["roll_rel_deg"] - t["roll_rel_deg"])) * 1e6),
+            "same_gauge_and_wear": all(np.array_equal(g[c], design[c], equal_nan=True)
+                                       for c in g if c.startswith(("gauge", "wear"))),
+            "cross_level_reference": {**ref, "true_roll_error_mean_urad": float(np.mean(roll_error) * 1e6),
                                       "truth_cross_level_mean_mm": float(np.mean(t["cross_level_mm"][used]))}}
 
 
