@@ -4,7 +4,9 @@
 The log's images (``foxglove.CompressedImage`` PNG, :mod:`.image_log`) are measured frame by
 frame with the calibrated camera-laser units (:func:`~trackfusion.vision.measure.measure_run`);
 the roll of the measuring frame relative to the track comes from its IMU, the encoder's
-chainage matched onto the design (:mod:`.relative_motion`); the centreline's alignment and
+chainage matched onto the design (:mod:`.relative_motion`), less the run's constant roll offset
+estimated from the cross-level's mean about the design (``cross_level_reference: design``,
+:mod:`.cross_level_reference`); the centreline's alignment and
 vertical profile (D1 band) are the fitted profile origins plus eq. 46's relative trajectory.
 Writes ``geometry.csv`` (+ ``geometry.json``), ``metrics.json`` and ``report.html`` (cross-sections
 at a few chainages, gauge and wear against chainage). Faulty frames are NaN in the table and
