@@ -9,9 +9,13 @@ calibrated from its calibration sets, and the pipeline it wrote (datasheet value
 twice, with two forked processes and with one. The same survey is simulated again with its
 images as ``sensor_msgs/msg/Image`` (``--set image_encoding=raw``: nothing to decode) and run
 the same two ways with the same calibration file; the four geometry.csv must be the same bytes.
-Figures against ``truth.csv``: gauge and
-cross-level RMS error (and the cross-level error's mean and standard deviation: the mean is the
-accelerometer's lateral bias through the roll), roll RMS error, chainage error, alignment and
+The pipeline takes the run's constant roll offset off the roll (``cross_level_reference:
+design``, the default); it is run once more with ``none`` (two processes) for the figures
+without it. Figures against ``truth.csv``: gauge and
+cross-level RMS error (and the cross-level error's mean and standard deviation: without the
+reference the mean is the accelerometer's lateral bias through the roll; with it, minus the
+truth's own mean cross-level over the run), the offset's estimate (metrics.json) against the
+true constant roll error (the mean roll error without the reference), roll RMS error, chainage error, alignment and
 vertical profile (D1 band of the truth over the filmed stretch, 12.5 m from its ends) RMS error,
 wear error on the fully worn frames (single frames, 1 m means), faults against the frames
 rendered without a stripe, frames per second (both cameras, reading and decoding included; wall
@@ -96,6 +100,30 @@ def speed_figures(r2, r1, prefix: str) -> dict:
             f"{prefix}read_s_two_processes": t2["read_s"]}
 
 
+def no_reference(sim: Path, t: dict, ref: dict) -> dict:
+    """The pipeline run again with ``cross_level_reference: none``: its cross-level, roll and D1
+    figures, whether gauge and wear are the same numbers, and the design run's offset estimate
+    (``ref``, metrics.json) against the true constant roll error and the truth's mean
+    cross-level over the frames it used."""
+    text = (sim / "pipeline.yaml").read_text()
+    assert "cross_level_reference: design" in text
+    (sim / "pipeline_none.yaml").write_text(text.replace("cross_level_reference: design",
+                                                         "cross_level_reference: none"))
+    r = run(load_pipeline(sim / "pipeline_none.yaml"), sim / "out_none")
+    g = _table(sim / "out_none" / "geometry.csv")
+    design = _table(sim / "out" / "geometry.csv")
+    fig = figures(t, g, r.metrics)
+    used = np.isfinite(g["cross_level_mm"])
+    keys = ("cross_level_rms_error_mm", "cross_level_mean_error_mm", "cross_level_sd_error_mm", "roll_rms_error_deg",
+            "alignment_d1_rms_error_mm", "vertical_profile_d1_rms_error_mm")
+    roll_error = np.radians(g["roll_rel_deg"] - t["roll_rel_deg"])
+    return {"no_reference": {k: fig[k] for k in keys},
+            "same_gauge_and_wear": all(np.array_equal(g[c], design[c], equal_nan=True)
+                                       for c in g if c.startswith(("gauge", "wear"))),
+            "cross_level_reference": {**ref, "true_roll_error_mean_urad": float(np.mean(roll_error) * 1e6),
+                                      "truth_cross_level_mean_mm": float(np.mean(t["cross_level_mm"][used]))}}
+
+
 def run_both(sim: Path) -> tuple:
     """The pipeline run with two processes (``out``) and with one (``out1``), and the load
     average (1 min) after each."""
@@ -115,11 +143,13 @@ def one_seed(seed: int, length_m: float, speed_mps: float, work: Path) -> dict:
     results = calibrate_folder(sim / "calibration", sim / "calibration.yaml")
     r2, r1, load = run_both(sim)
     geometry = (sim / "out" / "geometry.csv").read_bytes()
-    out = {"seed": seed, **figures(_table(sim / "truth.csv"), _table(sim / "out" / "geometry.csv"), r2.metrics),
+    truth = _table(sim / "truth.csv")
+    out = {"seed": seed, **figures(truth, _table(sim / "out" / "geometry.csv"), r2.metrics),
            "reprojection_rms_px": max(r.reprojection_rms_px for r in results), **speed_figures(r2, r1, ""),
-           "one_and_two_processes_same_geometry_csv": (sim / "out1" / "geometry.csv").read_bytes() == geometry}
+           "one_and_two_processes_same_geometry_csv": (sim / "out1" / "geometry.csv").read_bytes() == geometry,
+           **no_reference(sim, truth, r2.metrics["vision"]["cross_level_reference"])}
     log_mb = (sim / "log.mcap").stat().st_size / 1e6
-    shutil.rmtree(sim / "out"), shutil.rmtree(sim / "out1"), (sim / "log.mcap").unlink()
+    shutil.rmtree(sim / "out"), shutil.rmtree(sim / "out1"), shutil.rmtree(sim / "out_none"), (sim / "log.mcap").unlink()
     raw = work / f"seed{seed}_raw"
     simulate_tgms_to_dir(raw, seed=seed, overrides=sets + ["image_encoding=raw"])
     shutil.copy(sim / "calibration.yaml", raw / "calibration.yaml")
@@ -129,7 +159,7 @@ def one_seed(seed: int, length_m: float, speed_mps: float, work: Path) -> dict:
                 "raw_and_png_same_geometry_csv": all((raw / o / "geometry.csv").read_bytes() == geometry
                                                      for o in ("out", "out1"))})
     shutil.rmtree(sim), shutil.rmtree(raw)
-    print(json.dumps({k: v for k, v in out.items() if k != "faults"}))
+    print(json.dumps({k: v for k, v in out.items() if k not in ("faults", "cross_level_reference")}))
     return out
 
 
@@ -149,6 +179,8 @@ def main() -> None:
                                                    "chainage_max_abs_error_m", "alignment_d1_rms_error_mm",
                                                    "vertical_profile_d1_rms_error_mm", "wear_max_abs_error_mm",
                                                    "wear_max_abs_error_1m_mean_mm", "reprojection_rms_px")}
+    worst.update({f"{k}_no_reference": max(r["no_reference"][k] for r in runs)
+                  for k in ("cross_level_rms_error_mm", "roll_rms_error_deg")})
     worst.update({k: min(r[k] for r in runs) for k in runs[0] if "frames_per_" in k})
     targets = {"gauge_rms_error_mm": 0.3, "cross_level_rms_error_mm": 0.3, "alignment_d1_rms_error_mm": 0.5,
                "vertical_profile_d1_rms_error_mm": 0.5, "wear_max_abs_error_1m_mean_mm": 0.2,

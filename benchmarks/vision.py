@@ -15,7 +15,13 @@ left rail), glare on 2 % and missing stripes on 1 % of the frames -- and measure
 - gauge RMS error [mm] (target <= 0.3) and cross-level RMS error [mm] (target <= 0.3) over the
   frames not listed as faults, with the roll of the measuring frame relative to the track (eq.
   37's ``phi^{t,tgms}``) from the IMU (``trackfusion.vision.relative_motion.zero_phase_roll``,
-  the encoder's chainage matched onto the design); the vision alone with the true roll, and
+  the encoder's chainage matched onto the design) with the run's constant roll offset taken off
+  (``trackfusion.vision.cross_level_reference``, the vision run's default
+  ``cross_level_reference: design``; the frames measured again with that roll), and without it
+  (``none``); the offset's estimate against the true constant roll error (the filmed frames'
+  mean), the truth's own mean cross-level over the frames used (what the reference takes off
+  with the bias), and what the run's shortcut (eq. 37 recomputed from the first pass's poses,
+  the gauge kept) differs from measuring again; the vision alone with the true roll, and
   with a 0.01 deg rms error on it, to show what the roll source must deliver;
 - the centreline's alignment and vertical profile (eq. 40: profile origins + eq. 46's relative
   trajectory), D1 band (3-25 m), RMS error [mm] (target <= 0.5), 12.5 m from the stretch's ends;
@@ -53,8 +59,9 @@ from trackfusion.simulation.vision_calibration import write_calibration_set
 from trackfusion.simulation.vision_imu import DesignCurve, ImuSpec, encoder_chainage_m, imu_signals
 from trackfusion.track.rail_profile import rail_head, sample_unworn_mm, segment_normals
 from trackfusion.vision.calibration import calibrate_folder
+from trackfusion.vision.cross_level_reference import estimate_roll_offset
 from trackfusion.vision.madgwick import madgwick_roll
-from trackfusion.vision.measure import measure_run
+from trackfusion.vision.measure import cross_level_of_poses, measure_run
 from trackfusion.vision.relative_motion import (band_trace, design_along, design_chainage_m, rail_centre_trace,
                                                 relative_trajectory, zero_phase_roll)
 
@@ -104,10 +111,11 @@ def rms(x: np.ndarray) -> float:
 
 
 def inertial_figures(units: dict, images: dict, run, full_run, filmed: slice, enc: np.ndarray,
-                     roll_rel: np.ndarray, r_t: np.ndarray) -> dict:
+                     roll_rel: np.ndarray, r_t: np.ndarray, mm=None) -> dict:
     """Gauge, cross-level with a roll source, and the D1 alignment / vertical profile of the
-    centreline (eq. 40: vision origins + the relative trajectory ``r_t`` of that roll)."""
-    mm = measure_run(units, HEAD, images, roll_rel[filmed], workers=2)
+    centreline (eq. 40: vision origins + the relative trajectory ``r_t`` of that roll); the
+    frames measured with that roll unless ``mm`` holds them."""
+    mm = mm if mm is not None else measure_run(units, HEAD, images, roll_rel[filmed], workers=2)
     # r band-passed over the whole IMU record, the vision part over the filmed stretch
     s_v = enc[filmed]
     keep = (s_v > s_v[0] + 12.5) & (s_v < s_v[-1] - 12.5)
@@ -124,6 +132,30 @@ def inertial_figures(units: dict, images: dict, run, full_run, filmed: slice, en
         out[f"{name}_d1_rms_error_mm"] = rms(err)
         out[f"{name}_d1_truth_rms_mm"] = rms(ref[keep] * 1e3)
     return out
+
+
+def design_reference(units: dict, images: dict, run, rolls: dict, traces: dict, measured: dict,
+                     filmed: slice) -> dict:
+    """The run's constant roll offset from the zero-phase roll's frames (``measured``), added
+    to ``rolls`` / ``traces`` / ``measured`` as ``zero_phase_design`` (the frames measured again
+    with it; eq. 46's trajectory unchanged, as in the run); returns the estimate against the
+    true constant roll error, the truth's own mean cross-level over the frames used, and the
+    run's shortcut (eq. 37 recomputed from the first poses, gauge kept) against measuring again."""
+    m0, roll0 = measured["zero_phase"], rolls["zero_phase"][filmed]
+    est = estimate_roll_offset(m0.cross_level_m, m0.pose["left"], m0.pose["right"], roll0)
+    rolls["zero_phase_design"] = rolls["zero_phase"] - est.offset_rad
+    traces["zero_phase_design"] = traces["zero_phase"]
+    m1 = measure_run(units, HEAD, images, rolls["zero_phase_design"][filmed], workers=2)
+    measured["zero_phase_design"] = m1
+    quick = cross_level_of_poses(m0.pose["left"], m0.pose["right"], roll0 - est.offset_rad)
+    used = np.isfinite(m0.cross_level_m)
+    return {**est.as_metrics("design"),
+            "true_roll_error_mean_urad": float(np.mean(roll0 - run.roll_rel_rad) * 1e6),
+            "truth_cross_level_mean_mm": float(np.mean(run.cross_level_m[used]) * 1e3),
+            "shortcut_cross_level_max_abs_diff_mm": max_abs((quick - m1.cross_level_m) * 1e3),
+            "shortcut_gauge_max_abs_diff_mm": max_abs((m0.gauge_m - m1.gauge_m) * 1e3),
+            "shortcut_gauge_rms_diff_mm": rms((m0.gauge_m - m1.gauge_m) * 1e3),
+            "same_fault_frames": bool(np.array_equal(m0.fault_frames, m1.fault_frames))}
 
 
 def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
@@ -166,6 +198,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     for i, side in enumerate(("left", "right")):
         images[side], flags[side] = frame_images(sims[side], HEAD, run, StripeLook(), seed=1000 * seed + i)
     t_render = time.perf_counter() - t0 - t_cal
+    measured = {"zero_phase": measure_run(units, HEAD, images, rolls["zero_phase"][filmed], workers=2)}
+    reference = design_reference(units, images, run, rolls, traces, measured, filmed)
 
     t, c = time.perf_counter(), time.process_time()
     m = measure_run(units, HEAD, images, run.roll_rel_rad, workers=1)
@@ -180,8 +214,8 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
     roll_err = rng.normal(0.0, np.radians(0.01), n_frames)
     m_roll = measure_run(units, HEAD, images, run.roll_rel_rad + roll_err, workers=2)
 
-    inertial = {name: inertial_figures(units, images, run, full_run, filmed, enc, rolls[name], traces[name])
-                for name in rolls}
+    inertial = {name: inertial_figures(units, images, run, full_run, filmed, enc, rolls[name], traces[name],
+                                       measured.get(name)) for name in rolls}
 
     eg = (m.gauge_m - run.gauge_m) * 1e3
     ec = (m.cross_level_m - run.cross_level_m) * 1e3
@@ -207,7 +241,9 @@ def one_seed(seed: int, n_frames: int, speed_mps: float, work: Path) -> dict:
         "with_roll_error_0p01deg": {"gauge_rms_error_mm": rms((m_roll.gauge_m - run.gauge_m) * 1e3),
                                     "cross_level_rms_error_mm": rms((m_roll.cross_level_m - run.cross_level_m) * 1e3)},
         "wear_worn_stretch": wear_fig,
-        "ours_zero_phase_roll": inertial["zero_phase"],
+        "ours_zero_phase_roll": inertial["zero_phase_design"],
+        "ours_zero_phase_roll_no_reference": inertial["zero_phase"],
+        "cross_level_reference": reference,
         "madgwick_roll_baseline": {k: inertial[k] for k in ("seed_corrected", "plain")},
         "faults": {"frames_listed": len(listed), "by_reason": dict(Counter(r for _, _, r in m.faults)),
                    "frames_without_stripe": len(no_stripe),
@@ -233,6 +269,14 @@ def summary(runs: list[dict]) -> dict:
         "roll_rms_error_deg": max(o["roll_rms_error_deg"] for o in ours),
         "gauge_rms_error_mm": max(o["gauge_rms_error_mm"] for o in ours),
         "cross_level_rms_error_mm": max(o["cross_level_rms_error_mm"] for o in ours),
+        "cross_level_rms_error_mm_no_reference": max(
+            r["ours_zero_phase_roll_no_reference"]["cross_level_rms_error_mm"] for r in runs),
+        "roll_rms_error_deg_no_reference": max(
+            r["ours_zero_phase_roll_no_reference"]["roll_rms_error_deg"] for r in runs),
+        "cross_level_reference_shortcut_max_abs_diff_mm": max(
+            r["cross_level_reference"]["shortcut_cross_level_max_abs_diff_mm"] for r in runs),
+        "cross_level_reference_shortcut_gauge_max_abs_diff_mm": max(
+            r["cross_level_reference"]["shortcut_gauge_max_abs_diff_mm"] for r in runs),
         "alignment_d1_rms_error_mm": max(o["alignment_d1_rms_error_mm"] for o in ours),
         "vertical_profile_d1_rms_error_mm": max(o["vertical_profile_d1_rms_error_mm"] for o in ours),
         "seed_baseline_roll_rms_error_deg": max(o["roll_rms_error_deg"] for o in seed_b),
@@ -271,8 +315,10 @@ def main() -> None:
         for seed in args.seeds:
             r = one_seed(seed, args.frames, args.speed_mps, Path(work))
             runs.append(r)
-            print(json.dumps({k: r[k] for k in ("seed", "gauge_rms_error_mm", "cross_level_rms_error_mm",
-                                                "frames_per_s_one_process", "frames_per_s_two_processes")}))
+            print(json.dumps({**{k: r[k] for k in ("seed", "gauge_rms_error_mm", "cross_level_rms_error_mm",
+                                                   "frames_per_s_one_process", "frames_per_s_two_processes")},
+                              "ours_cross_level_rms_error_mm": r["ours_zero_phase_roll"]["cross_level_rms_error_mm"],
+                              "ours_no_reference": r["ours_zero_phase_roll_no_reference"]["cross_level_rms_error_mm"]}))
     doc = {**summary(runs), "load_average": os.getloadavg(), "cpus": os.cpu_count(), "runs": runs}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=2))

@@ -84,6 +84,7 @@ def write_vision_report(path: Path, name: str, table: dict, metrics: dict, input
     """Write the self-contained report.html of a vision run: ``table`` geometry.csv's columns,
     ``inputs`` the log and units read, ``m`` the frame measurements, ``head`` the rail profile."""
     from ..sensors.fileio import write_text_atomic
+    from ..vision.cross_level_reference import describe_reference
     v = metrics["vision"]
     frames = section_frames(table)
     rows = "".join(f"<tr><td>{f['frame']}</td><td>{f['chainage_m']:.2f}</td><td>{f['rail']}</td>"
@@ -91,6 +92,8 @@ def write_vision_report(path: Path, name: str, table: dict, metrics: dict, input
     parts = [f"<h1>{html.escape(name)}: vision-inertial track geometry</h1>",
              f"<p>{v['frames']} frames per camera, chainage {v['chainage_m'][0]:.1f}-{v['chainage_m'][1]:.1f} m; "
              f"{v['faults']['frames']} frames with faults (NaN in geometry.csv).</p>",
+             f"<p>{html.escape(describe_reference(v['cross_level_reference']))} (docs/vision.md, "
+             "\"The cross-level's reference\").</p>",
              "<h2>Rail cross-sections</h2>",
              _img(cross_section_figure(frames, table["chainage_m"], inputs, m, head), "cross-sections")
              if frames else "<p>no frame without a fault</p>",

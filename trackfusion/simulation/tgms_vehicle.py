@@ -135,7 +135,7 @@ def pipeline_yaml(sc: TgmsScenario, seed: int) -> str:
     doc = {"name": NAME, "description": f"simulated {NAME} survey (seed {seed})",
            "vision": {"log": "log.mcap", "calibration": "calibration.yaml", "design": "design.csv",
                       "rail_profile": sc.rail_profile, "gauge_nominal_m": 1.435,
-                      "workers": 2},
+                      "workers": 2, "cross_level_reference": "design"},
            "outputs": {"report": True}}
     return (f"# trackfusion pipeline for the simulated survey {NAME!r} (seed {seed}).\n"
             "# First calibrate the cameras: trackfusion calibrate-vision calibration --out calibration.yaml\n"

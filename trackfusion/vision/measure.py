@@ -228,6 +228,16 @@ def check_inputs(units: dict, images: dict, roll_rad: np.ndarray) -> None:
             raise VisionError(f"vision: {side} images: {len(img)} frames, roll series has {len(roll_rad)}")
 
 
+def cross_level_of_poses(pose_left: np.ndarray, pose_right: np.ndarray, roll_rad: np.ndarray) -> np.ndarray:
+    """Eq. 37's cross-level [m] (F,): the height difference (left minus right) in the track frame
+    of the fitted profile origins (``pose_*[:, :2]``, ``(y, z)`` [mm] in the measuring frame,
+    (F, 3) poses), turned by the roll ``roll_rad`` (F,) of the measuring frame relative to the
+    track (the exact rotation); NaN poses give NaN."""
+    dy = pose_left[:, 0] - pose_right[:, 0]
+    dz = pose_left[:, 1] - pose_right[:, 1]
+    return (np.sin(roll_rad) * dy + np.cos(roll_rad) * dz) / 1e3
+
+
 def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarray, *,
                    gauge_nominal_m: float = 1.435, limits: FaultLimits = FaultLimits(),
                    stripe: StripeSettings = StripeSettings(), first_frame: int = 0) -> FrameMeasurements:
@@ -273,9 +283,7 @@ def measure_frames(units: dict, head: RailHead, images: dict, roll_rad: np.ndarr
         wear_bad[side] = glare_wear
     faults.sort()
     o = {side: rails[side]["fit"].pose for side in SIDE_SIGN}
-    dy = o["left"][:, 0] - o["right"][:, 0]
-    dz = o["left"][:, 1] - o["right"][:, 1]
-    cross = (s[:, 0] * dy + c[:, 0] * dz) / 1e3
+    cross = cross_level_of_poses(o["left"], o["right"], roll_rad)
     gauge = (face["left"] - face["right"]) / 1e3
     nan = lambda x: np.where(bad, np.nan, x)  # noqa: E731
     return FrameMeasurements(

@@ -4,7 +4,9 @@
 The log's images (``foxglove.CompressedImage`` PNG, :mod:`.image_log`) are measured frame by
 frame with the calibrated camera-laser units (:func:`~trackfusion.vision.measure.measure_run`);
 the roll of the measuring frame relative to the track comes from its IMU, the encoder's
-chainage matched onto the design (:mod:`.relative_motion`); the centreline's alignment and
+chainage matched onto the design (:mod:`.relative_motion`), less the run's constant roll offset
+estimated from the cross-level's mean about the design (``cross_level_reference: design``,
+:mod:`.cross_level_reference`); the centreline's alignment and
 vertical profile (D1 band) are the fitted profile origins plus eq. 46's relative trajectory.
 Writes ``geometry.csv`` (+ ``geometry.json``), ``metrics.json`` and ``report.html`` (cross-sections
 at a few chainages, gauge and wear against chainage). Faulty frames are NaN in the table and
@@ -18,7 +20,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 import numpy as np
 from pydantic import Field, ValidationError
@@ -34,7 +36,10 @@ class VisionSection(StrictModel):
     """``log``: the raw log (IMU, encoder, both cameras); ``calibration``: the file
     ``trackfusion calibrate-vision`` wrote; ``design``: curvature and cant against chainage
     (:mod:`.design_table`); the rail profile and nominal gauge of the drawing; ``workers``:
-    forked processes for the per-frame measurement (the result does not depend on it)."""
+    forked processes for the per-frame measurement (the result does not depend on it);
+    ``cross_level_reference``: ``design`` takes the run's constant roll offset (the
+    accelerometer's lateral bias, :mod:`.cross_level_reference`) off the roll, ``none`` only
+    reports it."""
 
     log: str
     calibration: str
@@ -42,6 +47,7 @@ class VisionSection(StrictModel):
     rail_profile: str = "60E1"
     gauge_nominal_m: float = Field(1.435, gt=0.5, lt=2.5)
     workers: int = Field(2, ge=1)
+    cross_level_reference: Literal["design", "none"] = "design"
 
 
 class VisionOutputs(StrictModel):
@@ -130,6 +136,27 @@ def motion(log: dict, design) -> dict:
             "frame_s_m": np.interp(tf, t, s), "frame_roll_rad": np.interp(tf, t, roll)}
 
 
+def reference_cross_level(mo: dict, m, reference: str) -> tuple[dict, Any]:
+    """The run's constant roll offset estimated from the measured cross-level
+    (:func:`~trackfusion.vision.cross_level_reference.estimate_roll_offset`), in
+    ``mo["cross_level_reference"]``; with ``reference == "design"`` taken off the frames' roll,
+    and the cross-level (eq. 37 from the fitted poses) and the centreline's trace (eq. 40,
+    :func:`d1_traces`) follow. Eq. 46's relative trajectory stays: it sees ``a_y - g phi``, in
+    which a lateral accelerometer bias and the roll offset it causes cancel (taking the offset
+    off the roll alone would leave the bias there, a drift of ``b_y t^2 / 2``). The gauge keeps
+    the first roll (a constant roll moves both gauge points alike; measuring the frames again
+    with the offset moved it by 0.6-9.5 um rms, at most 48 um in a frame where a window edge
+    moved, ``benchmarks/vision.py``). Returns the motion and the measurements."""
+    from dataclasses import replace
+    from .cross_level_reference import estimate_roll_offset
+    from .measure import cross_level_of_poses
+    est = estimate_roll_offset(m.cross_level_m, m.pose["left"], m.pose["right"], mo["frame_roll_rad"])
+    if reference == "design":
+        mo = {**mo, "frame_roll_rad": mo["frame_roll_rad"] - est.offset_rad}
+        m = replace(m, cross_level_m=cross_level_of_poses(m.pose["left"], m.pose["right"], mo["frame_roll_rad"]))
+    return {**mo, "cross_level_reference": est.as_metrics(reference)}, m
+
+
 def d1_traces(m, mo: dict) -> dict[str, np.ndarray]:
     """Centreline alignment and vertical profile (F,) [m], D1 band: eq. 46's ``r`` band-passed over
     the whole IMU record plus the fitted origins' mean over the filmed stretch (eq. 40)."""
@@ -182,6 +209,7 @@ def vision_metrics(cfg: VisionPipelineConfig, log: dict, mo: dict, m, table: dic
         "duration_s": float(log["t_imu_s"][-1] - log["t_imu_s"][0]),
         "chainage_m": [float(mo["frame_s_m"][0]), float(mo["frame_s_m"][-1])],
         "encoder_to_design_shift_m": mo["offset_m"],
+        "cross_level_reference": mo["cross_level_reference"],
         "frames_per_cpu_s": timings.get("frames_per_cpu_s"),
         "faults": {"frames": int(m.fault_frames.size), "rail_frames": len(faults),
                    "by_reason": dict(sorted(Counter(f["reason"] for f in faults).items())), "list": faults},
@@ -216,6 +244,9 @@ def process(inputs: dict, cfg: VisionPipelineConfig, say: Callable[[str], None])
     timings["frames_cpu_s"] = cpu_s() - cpu
     timings["frames_per_s"] = F / max(timings["frames_s"], 1e-9)
     timings["frames_per_cpu_s"] = F / max(timings["frames_cpu_s"], 1e-9)
+    tic = time.perf_counter()
+    mo, m = reference_cross_level(mo, m, v.cross_level_reference)
+    timings["cross_level_reference_s"] = time.perf_counter() - tic
     table = geometry_table(log, mo, m, d1_traces(m, mo))
     return table, vision_metrics(cfg, log, mo, m, table, timings), m, mo
 
@@ -265,6 +296,7 @@ def run_vision(p: VisionPipeline, out_dir: str | Path | None = None,
 
 def format_vision_summary(result) -> str:
     """The terminal lines of a vision run."""
+    from .cross_level_reference import describe_reference
     v = result.metrics["vision"]
     cols = v["columns"]
     f = v["faults"]
@@ -276,4 +308,5 @@ def format_vision_summary(result) -> str:
     if gauge["mean"] is not None:
         lines.append(f"  gauge {gauge['min'] * 1e3:.1f}-{gauge['max'] * 1e3:.1f} mm, cross-level "
                      f"{cols['cross_level_mm']['min']:.1f} to {cols['cross_level_mm']['max']:.1f} mm")
+    lines.append(f"  {describe_reference(v['cross_level_reference'])}")
     return "\n".join(lines)
