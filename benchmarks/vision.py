@@ -59,7 +59,7 @@ from trackfusion.simulation.vision_calibration import write_calibration_set
 from trackfusion.simulation.vision_imu import DesignCurve, ImuSpec, encoder_chainage_m, imu_signals
 from trackfusion.track.rail_profile import rail_head, sample_unworn_mm, segment_normals
 from trackfusion.vision.calibration import calibrate_folder
-from trackfusion.vision.cross_level_reference import estimate_roll_offset
+from trackfusion.vision.cross_level_reference import estimate_roll_offset, prior_weight
 from trackfusion.vision.madgwick import madgwick_roll
 from trackfusion.vision.measure import cross_level_of_poses, measure_run
 from trackfusion.vision.relative_motion import (band_trace, design_along, design_chainage_m, rail_centre_trace,
@@ -136,20 +136,22 @@ def inertial_figures(units: dict, images: dict, run, full_run, filmed: slice, en
 
 def design_reference(units: dict, images: dict, run, rolls: dict, traces: dict, measured: dict,
                      filmed: slice) -> dict:
-    """The run's constant roll offset from the zero-phase roll's frames (``measured``), added
+    """The run's constant roll offset from the zero-phase roll's frames (``measured``), weighted
+    against the IMU datasheet's accelerometer bias as the run weighs it, added
     to ``rolls`` / ``traces`` / ``measured`` as ``zero_phase_design`` (the frames measured again
     with it; eq. 46's trajectory unchanged, as in the run); returns the estimate against the
     true constant roll error, the truth's own mean cross-level over the frames used, and the
     run's shortcut (eq. 37 recomputed from the first poses, gauge kept) against measuring again."""
     m0, roll0 = measured["zero_phase"], rolls["zero_phase"][filmed]
     est = estimate_roll_offset(m0.cross_level_m, m0.pose["left"], m0.pose["right"], roll0)
-    rolls["zero_phase_design"] = rolls["zero_phase"] - est.offset_rad
+    weight = prior_weight(est.sd_rad, ImuSpec().accel_bias_mg)  # the datasheet's bias, as the run
+    rolls["zero_phase_design"] = rolls["zero_phase"] - weight * est.offset_rad
     traces["zero_phase_design"] = traces["zero_phase"]
     m1 = measure_run(units, HEAD, images, rolls["zero_phase_design"][filmed], workers=2)
     measured["zero_phase_design"] = m1
-    quick = cross_level_of_poses(m0.pose["left"], m0.pose["right"], roll0 - est.offset_rad)
+    quick = cross_level_of_poses(m0.pose["left"], m0.pose["right"], roll0 - weight * est.offset_rad)
     used = np.isfinite(m0.cross_level_m)
-    return {**est.as_metrics("design"),
+    return {**est.as_metrics("design", weight),
             "true_roll_error_mean_urad": float(np.mean(roll0 - run.roll_rel_rad) * 1e6),
             "truth_cross_level_mean_mm": float(np.mean(run.cross_level_m[used]) * 1e3),
             "shortcut_cross_level_max_abs_diff_mm": max_abs((quick - m1.cross_level_m) * 1e3),

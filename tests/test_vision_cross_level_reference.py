@@ -151,3 +151,34 @@ def test_an_outlying_frame_is_left_out_and_too_few_frames_give_no_estimate():
     assert none.offset_rad == 0.0 and not np.isfinite(none.sd_rad)
     doc = none.as_metrics("design")
     assert doc["roll_offset_sd_urad"] is None and doc["cross_level_mean_mm"] is None
+
+
+def test_weight_against_the_datasheet_bias():
+    """The share taken off is the minimum-variance combination of the datasheet's prior (0 +-
+    sigma_b / g) and the estimate (+- sd): equal sigmas give a half; a precise estimate nearly
+    all; no datasheet figure all; no estimate none. Its expected squared error is below both."""
+    from trackfusion.vision.cross_level_reference import prior_weight
+    assert prior_weight(2e-4, 0.2) == pytest.approx(0.5)
+    assert prior_weight(2e-5, 0.2) == pytest.approx(1.0 / 1.01)
+    assert prior_weight(2e-4, None) == 1.0
+    assert prior_weight(float("nan"), 0.2) == 0.0
+    rng = np.random.default_rng(5)
+    roll_err = rng.normal(0.0, 2e-4, 200_000)         # the bias b / g, 0.2 mg
+    estimate = roll_err + rng.normal(0.0, 3e-4, roll_err.size)  # plus the track's run mean
+    w = prior_weight(3e-4, 0.2)
+    mse = {k: float(np.mean(e**2)) for k, e in (("none", roll_err), ("whole", roll_err - estimate),
+                                                 ("weighted", roll_err - w * estimate))}
+    assert mse["weighted"] == pytest.approx((2e-4 * 3e-4) ** 2 / (2e-4**2 + 3e-4**2), rel=0.01)
+    assert mse["weighted"] < min(mse["none"], mse["whole"])
+
+
+def test_the_run_takes_off_the_weighted_offset(biased_and_free):
+    """With the datasheet figure the run's roll moves by the weight times the estimate, as
+    reported."""
+    mo, m = biased_and_free["biased"]["mo"], biased_and_free["biased"]["m"]
+    ref_mo, _ = reference_cross_level(mo, m, "design", accel_bias_mg=0.2)
+    rep = ref_mo["cross_level_reference"]
+    assert 0.0 < rep["weight"] < 1.0
+    assert np.allclose(mo["frame_roll_rad"] - ref_mo["frame_roll_rad"], rep["roll_offset_applied_urad"] * 1e-6,
+                       rtol=0, atol=1e-15)
+    assert rep["roll_offset_applied_urad"] == pytest.approx(rep["weight"] * rep["roll_offset_urad"])

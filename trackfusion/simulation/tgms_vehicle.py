@@ -130,12 +130,15 @@ def truth_columns(sim: dict) -> dict[str, np.ndarray]:
 
 
 def pipeline_yaml(sc: TgmsScenario, seed: int) -> str:
-    """The survey's pipeline: file names and datasheet/drawing values only."""
+    """The survey's pipeline: file names and datasheet/drawing values only (the IMU's nominal
+    accelerometer bias, not the drawn one)."""
     import yaml
+
+    from .vision_imu import ImuSpec
     doc = {"name": NAME, "description": f"simulated {NAME} survey (seed {seed})",
            "vision": {"log": "log.mcap", "calibration": "calibration.yaml", "design": "design.csv",
                       "rail_profile": sc.rail_profile, "gauge_nominal_m": 1.435,
-                      "workers": 2, "cross_level_reference": "design"},
+                      "workers": 2, "cross_level_reference": "design", "accel_bias_mg": ImuSpec().accel_bias_mg},
            "outputs": {"report": True}}
     return (f"# trackfusion pipeline for the simulated survey {NAME!r} (seed {seed}).\n"
             "# First calibrate the cameras: trackfusion calibrate-vision calibration --out calibration.yaml\n"

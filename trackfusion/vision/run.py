@@ -38,8 +38,9 @@ class VisionSection(StrictModel):
     (:mod:`.design_table`); the rail profile and nominal gauge of the drawing; ``workers``:
     forked processes for the per-frame measurement (the result does not depend on it);
     ``cross_level_reference``: ``design`` takes the run's constant roll offset (the
-    accelerometer's lateral bias, :mod:`.cross_level_reference`) off the roll, ``none`` only
-    reports it."""
+    accelerometer's lateral bias, :mod:`.cross_level_reference`) off the roll, weighted against
+    ``accel_bias_mg``, the IMU datasheet's accelerometer bias (1 sigma, in-run and turn-on; null:
+    the offset is taken off whole); ``none`` only reports it."""
 
     log: str
     calibration: str
@@ -48,6 +49,7 @@ class VisionSection(StrictModel):
     gauge_nominal_m: float = Field(1.435, gt=0.5, lt=2.5)
     workers: int = Field(2, ge=1)
     cross_level_reference: Literal["design", "none"] = "design"
+    accel_bias_mg: float | None = Field(None, gt=0)
 
 
 class VisionOutputs(StrictModel):
@@ -136,10 +138,12 @@ def motion(log: dict, design) -> dict:
             "frame_s_m": np.interp(tf, t, s), "frame_roll_rad": np.interp(tf, t, roll)}
 
 
-def reference_cross_level(mo: dict, m, reference: str) -> tuple[dict, Any]:
+def reference_cross_level(mo: dict, m, reference: str, accel_bias_mg: float | None = None) -> tuple[dict, Any]:
     """The run's constant roll offset estimated from the measured cross-level
     (:func:`~trackfusion.vision.cross_level_reference.estimate_roll_offset`), in
-    ``mo["cross_level_reference"]``; with ``reference == "design"`` taken off the frames' roll,
+    ``mo["cross_level_reference"]``; with ``reference == "design"`` taken off the frames' roll
+    (weighted against the datasheet's bias ``accel_bias_mg``, :func:`~trackfusion.vision.
+    cross_level_reference.prior_weight`),
     and the cross-level (eq. 37 from the fitted poses) and the centreline's trace (eq. 40,
     :func:`d1_traces`) follow. Eq. 46's relative trajectory stays: it sees ``a_y - g phi``, in
     which a lateral accelerometer bias and the roll offset it causes cancel (taking the offset
@@ -148,13 +152,14 @@ def reference_cross_level(mo: dict, m, reference: str) -> tuple[dict, Any]:
     with the offset moved it by 0.6-9.5 um rms, at most 48 um in a frame where a window edge
     moved, ``benchmarks/vision.py``). Returns the motion and the measurements."""
     from dataclasses import replace
-    from .cross_level_reference import estimate_roll_offset
+    from .cross_level_reference import estimate_roll_offset, prior_weight
     from .measure import cross_level_of_poses
     est = estimate_roll_offset(m.cross_level_m, m.pose["left"], m.pose["right"], mo["frame_roll_rad"])
+    weight = prior_weight(est.sd_rad, accel_bias_mg)
     if reference == "design":
-        mo = {**mo, "frame_roll_rad": mo["frame_roll_rad"] - est.offset_rad}
+        mo = {**mo, "frame_roll_rad": mo["frame_roll_rad"] - weight * est.offset_rad}
         m = replace(m, cross_level_m=cross_level_of_poses(m.pose["left"], m.pose["right"], mo["frame_roll_rad"]))
-    return {**mo, "cross_level_reference": est.as_metrics(reference)}, m
+    return {**mo, "cross_level_reference": est.as_metrics(reference, weight)}, m
 
 
 def d1_traces(m, mo: dict) -> dict[str, np.ndarray]:
@@ -245,7 +250,7 @@ def process(inputs: dict, cfg: VisionPipelineConfig, say: Callable[[str], None])
     timings["frames_per_s"] = F / max(timings["frames_s"], 1e-9)
     timings["frames_per_cpu_s"] = F / max(timings["frames_cpu_s"], 1e-9)
     tic = time.perf_counter()
-    mo, m = reference_cross_level(mo, m, v.cross_level_reference)
+    mo, m = reference_cross_level(mo, m, v.cross_level_reference, v.accel_bias_mg)
     timings["cross_level_reference_s"] = time.perf_counter() - tic
     table = geometry_table(log, mo, m, d1_traces(m, mo))
     return table, vision_metrics(cfg, log, mo, m, table, timings), m, mo
