@@ -42,7 +42,7 @@ import numpy as np
 
 from .relative_motion import GRAVITY_MPS2
 
-REFERENCES = ("design", "none")
+#: frames further than this many robust standard deviations from the median are left out
 CLIP_SIGMAS = 5.0
 
 
@@ -101,6 +101,7 @@ class RollOffset:
                 "cross_level_mean_mm": finite(self.cross_level_mean_mm),
                 "cross_level_sd_mm": finite(self.cross_level_sd_mm), "baseline_m": finite(self.baseline_m)}
 
+
 def prior_weight(sd_rad: float, accel_bias_mg: float | None) -> float:
     """The share ``w`` (0-1] of the estimated roll offset to take off the roll (module
     docstring): ``sigma_b^2 / (sigma_b^2 + sd^2)`` with ``sigma_b = accel_bias_mg * 1e-3`` [rad]
@@ -141,14 +142,17 @@ def estimate_roll_offset(cross_level_m: np.ndarray, pose_left: np.ndarray, pose_
     return RollOffset(mean / baseline, sd / np.sqrt(n_eff) / baseline, n, n_eff, mean * 1e3, sd * 1e3, baseline)
 
 
-
 def describe_reference(ref: dict) -> str:
     """One line of text for ``metrics.json`` ``vision.cross_level_reference`` (the run's
     summary and report)."""
     if ref["roll_offset_sd_urad"] is None:
         return f"cross-level reference {ref['reference']}: roll offset not estimable ({ref['frames']} frames)"
-    how = (f"{ref['weight']:.2f} of it taken off the roll (the datasheet's bias against the track's run mean)"
-           if ref["applied"] else "reported, not applied")
+    if not ref["applied"]:
+        how = "reported, not applied"
+    elif ref["weight"] == 1.0:  # no datasheet figure to weigh it against (prior_weight)
+        how = "taken off the roll"
+    else:
+        how = f"{ref['weight']:.2f} of it taken off the roll (the datasheet's bias against the track's run mean)"
     return (f"cross-level reference {ref['reference']}: roll offset {ref['roll_offset_urad']:+.0f} +- "
             f"{ref['roll_offset_sd_urad']:.0f} urad ({ref['roll_offset_deg']:+.4f} deg; lateral accelerometer bias "
             f"{ref['lateral_accel_bias_mg']:+.3f} +- {ref['lateral_accel_bias_sd_mg']:.3f} mg), {how}")
