@@ -78,12 +78,12 @@ def _sigmas(cov: np.ndarray, R_nb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _check_against_dense(problem, monkeypatch) -> int:
     seen = []
-    real = smoother._sigma_marginals
+    real = smoother._sigma_covariances
 
     def recording(problem_, sol, gfg, *args):
         seen.append(gfg if gfg is not None else sol.gfg)
         return real(problem_, sol, gfg, *args)
-    monkeypatch.setattr(smoother, "_sigma_marginals", recording)
+    monkeypatch.setattr(smoother, "_sigma_covariances", recording)
     result = smoother.smooth(problem)
     assert len(seen) == 1
     k_sig = np.searchsorted(result.t_s, result.sigma_t_s)
@@ -99,21 +99,43 @@ def _check_against_dense(problem, monkeypatch) -> int:
 
 def test_sigmas_equal_the_dense_inverse_in_one_piece(problem, monkeypatch):
     calls = []
-    real = smoother.part_marginals
-    monkeypatch.setattr(smoother, "part_marginals", lambda *a: calls.append(1) or real(*a))
+    real = smoother.part_marginal_covariances
+    monkeypatch.setattr(smoother, "part_marginal_covariances", lambda *a: calls.append(1) or real(*a))
     _check_against_dense(problem, monkeypatch)
     assert not calls  # a run this short: the solve's own Bayes tree
 
 
 def test_sigmas_equal_the_dense_inverse_in_parts(problem, monkeypatch):
     counts = []
-    real = smoother.part_marginals
+    real = smoother.part_marginal_covariances
 
-    def counting(partition, gfg):
+    def counting(partition, gfg, keys, workers):
         counts.append(partition.count)
-        return real(partition, gfg)
-    monkeypatch.setattr(smoother, "part_marginals", counting)
+        return real(partition, gfg, keys, workers)
+    monkeypatch.setattr(smoother, "part_marginal_covariances", counting)
     duration = problem.imu.t_s[-1] - problem.imu.t_s[0]
     monkeypatch.setattr(smoother, "MARGINAL_PART_S", duration / 3 + 0.5)
     _check_against_dense(problem, monkeypatch)
     assert counts == [3]
+
+
+def test_part_covariances_are_the_same_bits_on_any_number_of_processes(problem, monkeypatch):
+    """The sigma columns' covariances dealt to 1, 2 or 3 processes (parts of a third of the run)
+    are the same bits, and those of :class:`~trackfusion.fusion.partitioned.PartMarginals`."""
+    from trackfusion.fusion import partitioned
+    seen = []
+    real = smoother.part_marginal_covariances
+
+    def recording(partition, gfg, keys, workers):
+        seen.append((partition, gfg, keys))
+        return real(partition, gfg, keys, workers)
+    monkeypatch.setattr(smoother, "part_marginal_covariances", recording)
+    monkeypatch.setattr(smoother, "MARGINAL_PART_S", (problem.imu.t_s[-1] - problem.imu.t_s[0]) / 3 + 0.5)
+    smoother.smooth(problem)
+    partition, gfg, keys = seen[0]
+    assert partition.count == 3 and len(keys) > 30
+    by_workers = [real(partition, gfg, keys, w) for w in (1, 2, 3)]
+    lazy = partitioned.part_marginals(partition, gfg)
+    for k in keys:
+        assert all(np.array_equal(by_workers[0][k], other[k]) for other in by_workers[1:])
+        assert np.array_equal(by_workers[0][k], lazy.marginalCovariance(k))

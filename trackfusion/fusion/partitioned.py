@@ -26,7 +26,8 @@ gating's decisions are the batch's.
 Marginals (:class:`PartMarginals`): the marginal of a variable of part ``p`` is that of part
 ``p``'s factors together with the other parts' reduced factors (the information the rest of the
 run holds on the separator), which is exact as well. They are also the one-batch solve's
-marginals (:func:`part_marginals`, parts of :data:`MARGINAL_PART_S`): GTSAM's Bayes-tree
+marginals (:func:`part_marginal_covariances`, parts of :data:`MARGINAL_PART_S` dealt to the
+CPUs; :func:`part_marginals` is the same in one process): GTSAM's Bayes-tree
 marginals recurse from the root down every clique on the way (each clique's separator marginal
 from its parent's), and along the tree of a whole hour's chain that recursion drifts, by up to
 0.4 % of a position sigma on the hour of ``benchmarks/speed.py`` against the exact marginal
@@ -301,6 +302,53 @@ def _union(graphs) -> gtsam.GaussianFactorGraph:
 #: length [s] of the parts the sigma columns of a one-batch solve are computed in (module
 #: docstring): a fixed length, so that they do not depend on the machine
 MARGINAL_PART_S = 600.0
+
+
+def marginal_covariance(tree, key: int) -> np.ndarray:
+    """Marginal covariance of one variable from ``tree`` (a Bayes tree or
+    :class:`PartMarginals`): GTSAM's (Cholesky down the tree); when that meets the
+    conditioning limit of the elimination, by QR: the marginal is then a conditional
+    ``R x = d`` with unit noise, so the covariance is ``R^-1 R^-T``."""
+    try:
+        return tree.marginalCovariance(key)
+    except RuntimeError:
+        # keep the conditional alive while reading it: R() of a temporary reads freed memory
+        # (marginals of 1e-90 and 0.1 rad seen on open-track-gnss with the wheel-path factor)
+        marginal = tree.marginalFactor(key, gtsam.EliminateQR)
+        R_inv = np.linalg.inv(np.array(marginal.R()))
+        return R_inv @ R_inv.T
+
+
+def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGraph, keys: list[int],
+                              workers: int) -> dict[int, np.ndarray]:
+    """The marginal covariances of ``keys`` in linearised graph ``gfg``, computed in the parts of
+    ``partition`` as :class:`PartMarginals` computes them (the same numbers), with the parts
+    dealt to ``workers`` processes (trackfusion/parallel.py): each reduces its parts, every
+    part's reduced factors go to every process, and each eliminates its parts' trees and answers
+    the keys that live in them. Only the reduced factors and the covariances cross processes."""
+    layout = partition.layout(gfg)
+    by_part: dict[int, list[int]] = {}
+    for k in keys:
+        by_part.setdefault(layout.home[int(k)], []).append(int(k))
+
+    def reduce(group: list[int]) -> list[list[str]]:  # packed: a linear graph does not pickle
+        return [_pack(_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced) for p in group]
+
+    def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
+        reduced = [_unpack(r) for r in packed]
+        out = {}
+        for p in group:
+            if p not in by_part:
+                continue
+            tree = _eliminate_all(_union([layout.part_graph(gfg, p)] + [r for q, r in enumerate(reduced) if q != p]))
+            out.update((k, marginal_covariance(tree, k)) for k in by_part[p])
+        return out
+
+    def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
+        return [r for group in per_group for r in group]
+
+    _, _, done = run_step(groups_of(partition.count, workers), reduce, all_reduced, covariances)
+    return {k: v for group in done for k, v in group.items()}
 
 
 def part_marginals(partition: Partition, gfg: gtsam.GaussianFactorGraph) -> "PartMarginals":

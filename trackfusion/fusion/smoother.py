@@ -32,8 +32,10 @@ from .normal_solve import tree_factor
 from .preintegration import preintegrate
 from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
+from ..forked import usable_cpus
 from ..parallel import dask_client
-from .partitioned import MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, part_marginals
+from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, marginal_covariance,
+                          part_marginal_covariances)
 from .wheel_path import wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
@@ -632,7 +634,7 @@ class _Solved:
     """What :func:`gauss_newton` returns: the estimate (``values``, and ``state``: the same as
     arrays), the iterations, the initial and final cost, and the last linearisation ``gfg``
     (at ``values``, or one converged step before them) and its Bayes tree, which the marginals
-    reuse instead of linearising once more (:func:`_sigma_marginals`)."""
+    reuse instead of linearising once more (:func:`_sigma_covariances`)."""
 
     values: gtsam.Values
     state: _State
@@ -715,28 +717,19 @@ def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigm
     return vec @ (lam[:, :, None] * np.swapaxes(vec, -1, -2))
 
 
-def _marginal_covariance(tree: gtsam.GaussianBayesTree, key: int) -> np.ndarray:
-    """Marginal covariance of one variable: GTSAM's (Cholesky down the tree); when that meets
-    the conditioning limit of :func:`_eliminate`, by QR: the marginal is then a conditional
-    ``R x = d`` with unit noise, so the covariance is ``R^-1 R^-T``."""
-    try:
-        return tree.marginalCovariance(key)
-    except RuntimeError:
-        # keep the conditional alive while reading it: R() of a temporary reads freed memory
-        # (marginals of 1e-90 and 0.1 rad seen on open-track-gnss with the wheel-path factor)
-        marginal = tree.marginalFactor(key, gtsam.EliminateQR)
-        R_inv = np.linalg.inv(np.array(marginal.R()))
-        return R_inv @ R_inv.T
+def _sigma_keyframes(t_key: np.ndarray, step_s: float) -> np.ndarray:
+    """Indices of the keyframes about ``step_s`` apart (and the last one) that carry the sigmas."""
+    return np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
 
 
-def _marginal_sigmas(tree: gtsam.GaussianBayesTree, state: _State, t_key: np.ndarray,
-                     step_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position and attitude sigmas at keyframes about ``step_s`` apart (and the last one)."""
-    sel = np.unique(np.r_[nearest_sample(t_key, np.arange(t_key[0], t_key[-1], step_s)), t_key.size - 1])
+def _marginal_sigmas(covs: dict[int, np.ndarray], state: _State, t_key: np.ndarray, sel: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position and attitude sigmas at keyframes ``sel`` from the pose marginal covariances ``covs``
+    (key -> (6,6) in the body frame: attitude, position)."""
     sig_pos = np.empty((sel.size, 3))
     sig_att = np.empty((sel.size, 3))
     for i, k in enumerate(sel):
-        cov = _marginal_covariance(tree, X(int(k)))
+        cov = covs[X(int(k))]
         R = state.R[k]
         sig_pos[i] = np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T))
         att_n = R @ cov[:3, :3] @ R.T
@@ -1185,8 +1178,9 @@ def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", parti
     # the solve's last linearisation serves the marginals (at most one converged step before the
     # estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(rounds.G, values, kf.with_scale, soft) if soft.keys or hand_over_t_s is not None else None
-    tree = _sigma_marginals(problem, sol, gfg if soft.keys else None, partition, kf)
-    sigmas = _marginal_sigmas(tree, sol.state, kf.t_s, problem.smoother.marginal_step_s)
+    sel = _sigma_keyframes(kf.t_s, problem.smoother.marginal_step_s)
+    covs = _sigma_covariances(problem, sol, gfg if soft.keys else None, partition, kf, [X(int(k)) for k in sel])
+    sigmas = _marginal_sigmas(covs, sol.state, kf.t_s, sel)
     hand_over = None
     if hand_over_t_s is not None:
         k = int(nearest_sample(kf.t_s, np.array([hand_over_t_s]))[0])
@@ -1223,17 +1217,22 @@ def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Sol
     return components.update(G.builders, sol.state, sol.gfg, G.graph.size(), tree_factor(tree, ordering), labels)
 
 
-def _sigma_marginals(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
-                     partition: Partition | None, kf: _Keyframes):
-    """The marginals behind the sigma columns, exact on a run of any length: of ``gfg`` (a
-    chunk's own marginal graph) or else of the solve's last linearisation, in parts of at most
-    :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole hour's Bayes tree
-    drifts). The solve's own tree when it is that already: a run no longer than one such part,
+def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
+                       partition: Partition | None, kf: _Keyframes, keys: list[int]) -> dict[int, np.ndarray]:
+    """The marginal covariances of ``keys`` behind the sigma columns, exact on a run of any
+    length: of ``gfg`` (a chunk's own marginal graph) or else of the solve's last linearisation,
+    in parts of at most :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole
+    hour's Bayes tree drifts), dealt to the CPUs this process may use (the same numbers on any
+    count). The solve's own tree when it is that already: a run no longer than one such part,
     or one solved in parts no longer."""
     parts = _partition(problem, kf, MARGINAL_PART_S)
     if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
-        return sol.tree
-    return _eliminate(gfg) if parts.count == 1 else part_marginals(parts, gfg if gfg is not None else sol.gfg)
+        tree = sol.tree
+    elif parts.count == 1:
+        tree = _eliminate(gfg)
+    else:
+        return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus())
+    return {k: marginal_covariance(tree, k) for k in keys}
 
 
 def _partition(problem: FusionProblem, kf: _Keyframes, part_s: float | None = None) -> Partition | None:
