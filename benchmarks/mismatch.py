@@ -15,13 +15,15 @@ sigma (``gnss.stated_sigma_factor = 1 / k``), and 5 % of its fixes are gross err
   precision: what a surveyor writes;
 * ``true``: the drawn IMU noise, the receiver stating its true white sigma, the drawn correlated
   sigmas (with the receiver's 1 ppm x baseline term in quadrature, as drawn: 8.2 / 15.1 mm at
-  the datasheet's 8 / 15 and the scenario's 2 km), the NHC sigma of the drawn track (simulation/nhc_sigma.py), the RMS error of the
-  odometer's increments, the drawn total-station precision; noise estimation off.
+  the datasheet's 8 / 15 and the scenario's 2 km), the NHC sigma of the drawn track
+  (simulation/nhc_sigma.py), the RMS error of the odometer's increments, the drawn
+  total-station precision; noise estimation off.
 
-The short surveys (tests/surveys.py's ``open-track-gnss``, 215 s; the bridge's first 200 m out and
-100 m back, one station), or with ``--full`` the scenarios' own surveys (44 and 53 min): a short
-survey sees one draw of the GNSS correlated error (300 s), which no estimator can tell from the
-datasheet's, so only the full ones test that group. Figures: 5 m vertical / lateral MSE (datasheet over true), pooled
+The short surveys (tests/surveys.py's ``open-track-gnss``, 215 s; the bridge's first 200 m out
+and 100 m back, one station), or with ``--full`` the scenarios' own surveys (44 and 53 min): a
+short survey sees one draw of the GNSS correlated error (300 s), which no estimator can tell
+from the datasheet's, so only the full ones test that group. Figures: 5 m vertical / lateral
+MSE (datasheet over true), pooled
 RMS(error / sigma) per ENU axis (with its effective independent samples and the 95 % interval
 for honest sigmas, evaluation/consistency.py), GNSS fixes rejected against those truly outside the gate,
 the estimated GNSS white / correlated, odometer and NHC sigmas over the drawn ones (the NHC's:

@@ -335,14 +335,8 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
         return [_pack(_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced) for p in group]
 
     def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
-        reduced = [_unpack(r) for r in packed]
-        out = {}
-        for p in group:
-            if p not in by_part:
-                continue
-            tree = _eliminate_all(_union([layout.part_graph(gfg, p)] + [r for q, r in enumerate(reduced) if q != p]))
-            out.update((k, marginal_covariance(tree, k)) for k in by_part[p])
-        return out
+        marginals = PartMarginals(gfg, [_unpack(r) for r in packed], layout)
+        return {k: marginal_covariance(marginals, k) for p in group for k in by_part.get(p, [])}
 
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
         return [r for group in per_group for r in group]

@@ -226,6 +226,8 @@ class SmootherSettings(StrictModel):
     ``workers``: with ``part_s``, the local processes the parts of each step are solved in
     (trackfusion/parallel.py: the same numbers with any count); the run's densification takes
     one fewer forked processes (at least one, fusion/densify_forked.py: the same rows); null: 1.
+    The sigma columns' 600 s parts of a longer run are dealt to the CPUs this process may use,
+    whatever ``workers`` says (fusion/partitioned.py ``part_marginal_covariances``: the same bits).
     Nothing here depends on the CPU count: the same log gives the same trajectory anywhere.
 
     ``part_s``: each Gauss-Newton step is solved in time parts of this duration
