@@ -29,7 +29,9 @@ PART_RUNS = {"parts": "out-parts-partsof600s_1workers", "batch": "out-parts-oneb
 CHUNK_S, OVERLAP_S, L_M = 600.0, 120.0, 5.0
 
 
-def _errors(sim: Path, name: str, truth: dict) -> tuple[np.ndarray, np.ndarray]:
+def errors_of(sim: Path, name: str, truth: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Times (N,) [s] of the run ``name``'s trajectory.csv in survey folder ``sim`` and its position
+    errors (N,3) e/n/u [m] against ``truth`` (truth.csv's columns), Hermite-interpolated."""
     from trackfusion.evaluation.errors_series import hermite_interpolate
     from trackfusion.sensors.fileio import read_csv_table
     tab = read_csv_table(sim / name / "trajectory.csv")
@@ -59,7 +61,7 @@ def seed_figures(seed: int, runs: dict[str, str] = RUNS) -> dict:
     from trackfusion.sensors.fileio import read_csv_table
     sim = CACHE / f"open-track-gnss-{seed}"
     truth = read_csv_table(sim / "truth.csv")
-    errs = {k: _errors(sim, name, truth) for k, name in runs.items()}
+    errs = {k: errors_of(sim, name, truth) for k, name in runs.items()}
     first = next(iter(runs))
     t = errs[first][0]
     i, j = pairs(t, np.interp(t, truth["t_s"], truth["chainage_m"]))
@@ -68,19 +70,32 @@ def seed_figures(seed: int, runs: dict[str, str] = RUNS) -> dict:
         joins = cut_times(t[0], t[-1], CHUNK_S)
     else:
         joins = join_times(t[0], t[-1], CHUNK_S, OVERLAP_S)
-    straddle = np.zeros(i.size, bool)
-    near = np.zeros(i.size, bool)
-    for tj in joins:
-        straddle |= (t[i] < tj) & (t[j] > tj)
-        near |= np.abs(t[i] - tj) < 30.0
-    # lateral and vertical: the open-track line runs east (along e), so n is lateral
-    out = {"seed": seed, "joins_s": joins.tolist(), "pairs": {"straddling": int(straddle.sum()),
-                                                             "within_30s": int(near.sum()), "elsewhere": int((~near).sum())}}
+    masks = join_masks(t, i, j, joins)
+    out = {"seed": seed, "joins_s": joins.tolist(), "pairs": {k: int(m.sum()) for k, m in masks.items()}}
     for k, (_, e) in errs.items():
-        d = (e[j] - e[i])[:, 1:] * 1e3
-        for label, sel in (("straddling", straddle), ("within_30s", near), ("elsewhere", ~near)):
+        out.update({f"{k}_{name}": v for name, v in rms_by_mask(e, i, j, masks).items()})
+    return out
+
+
+def join_masks(t_s: np.ndarray, i: np.ndarray, j: np.ndarray, joins: np.ndarray) -> dict[str, np.ndarray]:
+    """The pairs (i, j) of samples at times ``t_s`` straddling one of ``joins`` [s], starting within
+    30 s of one (straddling ones included), and the rest."""
+    straddle, near = np.zeros(i.size, bool), np.zeros(i.size, bool)
+    for tj in joins:
+        straddle |= (t_s[i] < tj) & (t_s[j] > tj)
+        near |= np.abs(t_s[i] - tj) < 30.0
+    return {"straddling": straddle, "within_30s": near, "elsewhere": ~near}
+
+
+def rms_by_mask(err_m: np.ndarray, i: np.ndarray, j: np.ndarray, masks: dict[str, np.ndarray]) -> dict[str, float]:
+    """RMS [mm] of the error differences ``err_m[j] - err_m[i]`` (err_m (N,3) e/n/u [m]), lateral
+    and vertical (the open-track line runs east: n is lateral), over each mask's pairs."""
+    d = (err_m[j] - err_m[i])[:, 1:] * 1e3
+    out = {}
+    for label, sel in masks.items():
+        if sel.any():
             rms = np.sqrt(np.mean(d[sel] ** 2, axis=0))
-            out[f"{k}_{label}_lateral_mm"], out[f"{k}_{label}_vertical_mm"] = float(rms[0]), float(rms[1])
+            out[f"{label}_lateral_mm"], out[f"{label}_vertical_mm"] = float(rms[0]), float(rms[1])
     return out
 
 

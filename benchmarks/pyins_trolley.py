@@ -311,7 +311,7 @@ def datasheet_pipeline() -> dict:
             "factors": {"imu": True, "zupt": True, "nhc": True, "odometer": True,
                         "wheel_path": {"enabled": True, "keyframe_step": 1}, "gnss": True,
                         "inclinometer": False, "total_stations": False},
-            "keyframes": {"spacing_s": 0.2, "spacing_without_wheel_path_s": 0.1},
+            "keyframes": {"spacing_s": 0.2},
             "outputs": {"trajectory_rate_hz": TRUTH_RATE_HZ, "geometry_step_m": 0.25}}
 
 

@@ -1,6 +1,6 @@
 """Overlapping chunks (fusion/chunks.py): no seam.
 
-One short noisy open-track survey (200 s) is smoothed as one batch and in chunks of 60 s
+One short noisy open-track survey (200 s, the wheel-path factor on, as simulated) is smoothed as one batch and in chunks of 60 s
 with 30 s overlap (joins at 60 s and 180 s while moving at 3 and 2 m/s, and at 120 s during a
 stop). At the joins:
 
@@ -9,7 +9,10 @@ stop). At the joins:
   1 um would show: the motion's own second difference is ~0.04 um at 100 Hz here);
 * relative accuracy: the 5 m error differences (error at t + 5 m of travel minus error at t),
   lateral and vertical, of the chunked solution differ from the batch's no more across the
-  joins than inside the chunks, and their RMS across the joins is the batch's;
+  joins than inside the chunks, and their RMS across the joins is that of the pairs within
+  30 s of a join (a chunk of 60 s + 30 s sees less data than the 200 s batch: with the wheel
+  path its lateral 5 m error is 0.13 mm near the joins against the batch's 0.007 mm, a heading
+  error of about 30 urad on both sides of the join, not a seam);
 * the sigmas are the batch's (a 200 s run is too short for the consistency statistic: it holds
   less than one draw of the 300 s correlated GNSS error).
 """
@@ -34,9 +37,9 @@ def _run(d, chunk_s):
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
     # workers 1: the batch is one batch (with this overlap it would be cut into parallel segments)
     data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=OVERLAP_S, workers=1)
-    data["factors"]["wheel_path"] = False  # chunked runs leave it out (test_chunked_run_leaves_the_wheel_path_out)
-    data["keyframes"]["spacing_s"] = data["keyframes"]["spacing_without_wheel_path_s"]  # and so run on these
-    data["factors"]["noise_estimation"] = False  # chunks keep the configured noise (docs/noise_estimation.md)
+    # the same noise model in the batch and the chunks (a 90 s first chunk estimates its own:
+    # test_later_chunks_apply_the_first_chunks_noise)
+    data["factors"]["noise_estimation"] = False
     return run(parse_pipeline(data, str(d / "pipeline.yaml"), d), d / f"out-{chunk_s}")
 
 
@@ -87,14 +90,17 @@ def test_relative_accuracy_across_joins_equals_inside(runs):
     i = i[np.abs(s[ahead[i]] - s[i] - 5.0) < 0.05]
     j = ahead[i]
     d_c, d_b = (err_c[j] - err_c[i])[:, 1:], (err_b[j] - err_b[i])[:, 1:]  # lateral, vertical [m]
-    straddle = np.zeros(i.size, bool)
+    straddle, near = np.zeros(i.size, bool), np.zeros(i.size, bool)
     for t_join in _joins(chunked.trajectory):
         straddle |= (t[i] < t_join) & (t[j] > t_join)
-    assert np.count_nonzero(straddle) > 100 and np.count_nonzero(~straddle) > 1000
+        near |= np.abs(t[i] - t_join) < 30.0
+    near &= ~straddle
+    assert np.count_nonzero(straddle) > 100 and np.count_nonzero(~straddle) > 1000 and np.count_nonzero(near) > 1000
     diff = np.abs(d_c - d_b)
     assert np.all(np.max(diff[straddle], axis=0) <= 1.5 * np.max(diff[~straddle], axis=0) + 1e-5)
     rms = lambda x: np.sqrt(np.mean(x**2, axis=0))  # noqa: E731
-    assert np.all(rms(d_c[straddle]) <= 1.5 * rms(d_b[straddle]) + 2e-5)
+    # measured 1.04 / 1.10 (lateral / vertical); a seam of 0.1 mm would make the lateral 1.25
+    assert np.all(rms(d_c[straddle]) <= 1.2 * rms(d_c[near])), (rms(d_c[straddle]), rms(d_c[near]))
 
 
 def test_chunked_sigmas_equal_the_batch_ones(runs):
@@ -106,20 +112,57 @@ def test_chunked_sigmas_equal_the_batch_ones(runs):
         assert 0.8 < ratio.min() and ratio.max() < 1.25, (c, ratio.min(), ratio.max())
 
 
-def test_chunked_run_leaves_the_wheel_path_out(runs, tmp_path):
-    """As simulated (wheel path on), a run in chunks is smoothed without it and says so."""
+def test_chunked_run_keeps_the_wheel_path(runs):
+    """A run in chunks keeps the wheel-path factor on the configured keyframes, across the joins."""
+    d, batch, chunked = runs
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    assert data["factors"]["wheel_path"]["enabled"] is True and data["keyframes"]["spacing_s"] == 0.2
+    assert "factors_left_out" not in chunked.metrics
+    factors = chunked.metrics["factors"]
+    assert factors["wheel_path"] > batch.metrics["factors"]["wheel_path"]  # (the overlaps count twice)
+    # the pairs across the two moving joins (3 and 2 m/s, a 1.2 m wheelbase, 0.2 s keyframes):
+    # front wheel point in the previous chunk, held; the rear in the next
+    assert 2 <= factors["wheel_path_hand_over"] <= 2 * 3
+
+
+def test_later_chunks_apply_the_first_chunks_noise(runs, monkeypatch):
+    """With the noise estimated (the default), the first chunk estimates each group's noise and
+    every later chunk applies the same factors (no estimate of its own); metrics.json says so."""
+    import trackfusion.fusion.chunks as chunks_module
+    from trackfusion.pipeline import build_problem
+    from trackfusion.sensors.mcap_log import read_log
+
     d = runs[0]
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
-    assert data["factors"]["wheel_path"]["enabled"] is True
-    data.setdefault("smoother", {}).update(chunk_s=CHUNK_S, overlap_s=OVERLAP_S, workers=1)
-    data.setdefault("outputs", {}).update(fused_mcap=False, report=False)
-    said = []
-    res = run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out", progress=said.append)
-    assert "wheel_path" not in res.metrics["factors"]
-    assert "hand-over" in res.metrics["factors_left_out"]["wheel_path"]
-    assert any(m.startswith("factors.wheel_path left out") and "keyframes every 0.1 s" in m for m in said)
-    assert data["keyframes"]["spacing_s"] == 0.2 and res.metrics["keyframes"] == runs[2].metrics["keyframes"]
-    np.testing.assert_array_equal(res.trajectory["e_m"], runs[2].trajectory["e_m"])
+    assert data["factors"].get("noise_estimation", True) is not False
+    pipeline = parse_pipeline(data, str(d / "pipeline.yaml"), d)
+    problem, _ = build_problem(pipeline, read_log(d / "log.mcap"), lambda _m: None)
+    joins, real = [], chunks_module.smooth
+
+    def spy(sub, say, join=None, hand_over_t_s=None):
+        joins.append(join)
+        return real(sub, say, join=join, hand_over_t_s=hand_over_t_s)
+
+    monkeypatch.setattr(chunks_module, "smooth", spy)
+    res, _ = chunks_module.smooth_in_chunks(problem, CHUNK_S, OVERLAP_S, 5)
+    first = res.noise_components
+    assert first["estimated_on"].startswith("the first chunk") and len(joins) == 4 and joins[0] is None
+    applied = {g: {c: v["applied_variance_factor"] for c, v in comps.items()} for g, comps in first["groups"].items()}
+    assert applied["nhc"]["lateral"] != 1.0  # the datasheet's NHC is far from this trolley's (docs/noise_estimation.md)
+    for join in joins[1:]:
+        assert join.noise_applied == applied
+
+
+def test_the_removed_spacing_key_is_refused(runs):
+    """``keyframes.spacing_without_wheel_path_s`` went with the chunks' leaving the wheel path out:
+    refused with one line that says what replaced it."""
+    from trackfusion.errors import ConfigError
+    d = runs[0]
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    data["keyframes"]["spacing_without_wheel_path_s"] = 0.1
+    with pytest.raises(ConfigError, match=r"keyframes\.spacing_without_wheel_path_s: removed; runs in chunks keep "
+                                          r"the wheel-path factor"):
+        parse_pipeline(data, str(d / "pipeline.yaml"), d)
 
 
 # --- long runs stream their output (fusion/output_rate.py, sensors/fileio.py CsvTableWriter) ---
@@ -134,7 +177,7 @@ def test_streamed_trajectory_csv_is_the_whole_run_table(runs):
 
     d, _, chunked = runs
     data = yaml.safe_load((d / "pipeline.yaml").read_text())
-    data["factors"]["wheel_path"] = False
+    data["factors"]["noise_estimation"] = False  # as _run
     pipeline = parse_pipeline(data, str(d / "pipeline.yaml"), d)
     problem, _ = build_problem(pipeline, read_log(d / "log.mcap"), lambda _m: None)
     every = _decimation(1.0 / np.median(np.diff(problem.imu.t_s)), pipeline.config.outputs.trajectory_rate_hz)

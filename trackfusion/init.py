@@ -229,8 +229,6 @@ def _sensors_and_factors(d: _Draft, log, kind: str, topics: dict, grade: str | N
     unused += [f"{t} (needs sensors.total_stations)" for t in stations]
     d.put("keyframes.spacing_s", 0.2 if wheel_path else KEYFRAME_SPACING_S[kind],
           "with the wheel path: 0.2 s keyframes keep the 0.1 s accuracy (docs/solver_speed.md)" if wheel_path else None)
-    if wheel_path:
-        d.put("keyframes.spacing_without_wheel_path_s", 0.1, "runs in chunks leave the wheel path out")
     rail = kind in ("trolley", "rail-vehicle")
     d.put("geometry.enabled", rail, "track geometry (docs/geometry.md)" if rail else "no track geometry for a road vehicle")
     if "gauge" in has and not rail:

@@ -218,7 +218,9 @@ class _UserPaths:
 REMOVED_KEYS = {("smoother", "slow_priors"): "the parallel segments it gave priors to are gone: "
                                             "smoother.part_s solves the run in exact time parts",
                 ("factors", "total_stations", "solve"): "the joint solve replaced the two-stage one: "
-                                                        "the stations are estimated with the whole trajectory"}
+                                                        "the stations are estimated with the whole trajectory",
+                ("keyframes", "spacing_without_wheel_path_s"): "runs in chunks keep the wheel-path factor now, "
+                                                               "on keyframes.spacing_s"}
 
 
 def _refuse_removed_keys(data: dict, source: str) -> None:
@@ -668,7 +670,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
     duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
-    chunked = _in_chunks(pipeline, problem, duration_s, info, say)
+    chunked = _in_chunks(pipeline, problem, duration_s)
     with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None)
@@ -736,24 +738,15 @@ class _Smoothed:
             self.kept.release()  # the geometry's rows, read back for it
 
 
-def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float, info: dict,
-               say: Callable[[str], None]) -> bool:
+def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float) -> bool:
     """Whether the run is smoothed in chunks (``smoother.chunk_s``, longer runs than a chunk and
-    its overlap); a total-station run too long for one batch is refused, and the wheel path,
-    which chunks leave out, is said and listed in ``info["factors_left_out"]``."""
-    cfg = pipeline.config
-    sm = cfg.smoother
-    chunked = sm.chunk_s is not None and duration_s > sm.chunk_s + sm.overlap_s
+    its overlap); a total-station run too long for one batch is refused."""
+    sm = pipeline.config.smoother
+    chunked = sm.chunk_s is not None and duration_s > sm.chunk_s + sm.chunk_overlap_s
     if chunked and problem.prisms is not None:  # station correction states are not handed over between chunks
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
                           f"{np.ceil(duration_s):.0f} (or null)")
-    if chunked and problem.factors.wheel_path.enabled:  # fusion/chunks.py leaves it out
-        from .fusion.chunks import WHEEL_PATH_LEFT_OUT
-        info["factors_left_out"] = {"wheel_path": WHEEL_PATH_LEFT_OUT}
-        say(f"factors.wheel_path left out: {WHEEL_PATH_LEFT_OUT}"
-            + (f"; keyframes every {cfg.keyframes.spacing_without_wheel_path_s:g} s (keyframes.spacing_without_wheel_path_s)"
-               if cfg.keyframes.spacing_without_wheel_path_s else ""))
     return chunked
 
 
@@ -838,7 +831,7 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
         release_free_memory()  # the chunk's graph and temporaries
 
     say("writing the trajectory at the output rate as each chunk is done")
-    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.overlap_s, every, say, on_dense=on_dense)
+    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.chunk_overlap_s, every, say, on_dense=on_dense)
     return res, stream
 
 

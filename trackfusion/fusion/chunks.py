@@ -8,7 +8,10 @@ about the correlation time of the errors). Its keyframes up to the join are kept
 and velocity held at it, bias, odometer scale and the GNSS correlated error carried on, so
 the trajectory is continuous at the seam in position, attitude and velocity; for its
 marginal covariances the hand-over priors take the previous chunk's marginal covariance
-instead. Each chunk's core is densified and decimated to the output rate at once, so the
+instead. The wheel-path factor (fusion/wheel_path.py) crosses the seam as well: the previous
+chunk's keyframes of the minute before the join are handed over as the front wheel points of
+the pairs whose rear wheel point is in the new chunk (held fixed: the previous chunk's
+estimate there saw the data on both sides of the join). Each chunk's core is densified and decimated to the output rate at once, so the
 IMU-rate trajectory never exists for the whole run either; with ``on_dense`` the decimated
 core goes to the caller chunk by chunk (the pipeline writes its trajectory.csv rows at once,
 fusion/output_rate.py) and is not kept here.
@@ -28,7 +31,7 @@ import numpy as np
 from .. import geodesy
 from ..sensors.types import ImuData, InclinometerData, OdometerData
 from .problem import FusionProblem, GnssFixes
-from .smoother import HandOver, SmootherResult, smooth
+from .smoother import WHEEL_FRONT_S, HandOver, SmootherResult, smooth
 from .trajectory import DenseTrajectory, KeyframeStates, densify
 
 #: sensor data kept beyond a chunk's ends (interpolation of the odometer and inclinometer) [s]
@@ -42,34 +45,21 @@ def join_times(t0_s: float, t1_s: float, chunk_s: float, overlap_s: float) -> np
     return joins[joins < t1_s - overlap_s]
 
 
-#: why a run in chunks is smoothed without the wheel-path factor (metrics.json ``factors_left_out``)
-WHEEL_PATH_LEFT_OUT = ("the chunk hand-over does not carry it yet (a seam at the joins: docs/wheel_path.md); "
-                       "set smoother.chunk_s to null or above the run's duration to keep it")
-
-
-def without_wheel_path(problem: FusionProblem) -> FusionProblem:
-    """``problem`` with ``factors.wheel_path`` switched off (see :data:`WHEEL_PATH_LEFT_OUT`), on
-    ``keyframes.spacing_without_wheel_path_s`` when that is set."""
-    fs, kf = problem.factors, problem.keyframes
-    spacing_s = kf.spacing_without_wheel_path_s or kf.spacing_s
-    return replace(problem, factors=fs.model_copy(update={"wheel_path": fs.wheel_path.model_copy(
-        update={"enabled": False})}), keyframes=kf.model_copy(update={"spacing_s": spacing_s}))
-
-
 def _slice_time(t_s: np.ndarray, a_s: float, b_s: float) -> slice:
     return slice(int(np.searchsorted(t_s, a_s, "left")), int(np.searchsorted(t_s, b_s, "right")))
 
 
-def sub_problem(problem: FusionProblem, i0: int, i1: int) -> FusionProblem:
+def sub_problem(problem: FusionProblem, i0: int, i1: int, odometer_before_s: float = 0.0) -> FusionProblem:
     """The problem restricted to IMU samples ``i0 .. i1`` (inclusive) and the other sensors'
-    data in that time span (odometer and inclinometer with a margin for interpolation)."""
+    data in that time span (odometer and inclinometer with a margin for interpolation; the
+    odometer from ``odometer_before_s`` [s] earlier, for the wheel-path pairs of a hand-over)."""
     imu = problem.imu
     s = slice(i0, i1 + 1)
     a, b = float(imu.t_s[i0]), float(imu.t_s[i1])
     sub = ImuData(imu.t_s[s], imu.gyro_radps[s], imu.accel_mps2[s])
     odo = problem.odometer
     if odo is not None:
-        k = _slice_time(odo.t_s, a - _MARGIN_S, b + _MARGIN_S)
+        k = _slice_time(odo.t_s, a - _MARGIN_S - odometer_before_s, b + _MARGIN_S)
         odo = OdometerData(odo.t_s[k], odo.distance_m[k], odo.ticks[k])
     g = problem.gnss
     if g is not None:
@@ -114,13 +104,11 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
     Returns the keyframe result of the whole run (arrays concatenated over the chunk cores;
     key_idx global; counts, costs, iterations and timings summed; the alignment of the first
     chunk) and the trajectory at every ``every``-th IMU sample (global index multiple of it).
-    The wheel-path factor is left out (:data:`WHEEL_PATH_LEFT_OUT`).
     With ``on_dense``, each chunk's piece of that trajectory is passed instead as
     ``on_dense(piece, result_so_far, last)`` (``result_so_far``: the keyframe result of the
     chunks done, as returned at the end) and None is returned for it.
     """
     say = progress or (lambda _m: None)
-    problem = without_wheel_path(problem)  # not handed over between chunks yet
     imu = problem.imu
     joins = join_times(float(imu.t_s[0]), float(imu.t_s[-1]), chunk_s, overlap_s)
     omega_ie_n = geodesy.earth_rate_n(problem.origin) if problem.factors.imu.earth_rate else np.zeros(3)
@@ -134,7 +122,7 @@ def smooth_in_chunks(problem: FusionProblem, chunk_s: float, overlap_s: float, e
         t_end = float(imu.t_s[-1]) if last else joins[c] + overlap_s
         i1 = imu.t_s.size - 1 if last else min(int(np.searchsorted(imu.t_s, t_end, "right")) - 1, imu.t_s.size - 1)
         say(f"chunk {c + 1} of {joins.size + 1}: {imu.t_s[i0]:.0f} - {imu.t_s[i1]:.0f} s")
-        sub = sub_problem(problem, i0, i1)
+        sub = sub_problem(problem, i0, i1, 0.0 if join is None else WHEEL_FRONT_S)
         res = smooth(sub, say, join=join, hand_over_t_s=None if last else float(joins[c]))
         k_end = res.t_s.size - 1 if last else res.hand_over.k
         k_start = 0 if join is None else 1
@@ -171,6 +159,13 @@ def _summary(res: SmootherResult) -> SmootherResult:
                    sigma_att_rad=empty, hand_over=None)
 
 
+def _first_chunk_noise(first: SmootherResult) -> dict | None:
+    """The groups' noise as the first chunk estimated it (every chunk applies it), saying so."""
+    if first.noise_components is None:
+        return None
+    return {**first.noise_components, "estimated_on": "the first chunk; the later chunks apply its factors"}
+
+
 def _check_seam(join: HandOver) -> None:
     if not np.all(np.isfinite(join.cov)):
         from ..errors import FusionError
@@ -192,4 +187,5 @@ def _combined(results: list[SmootherResult], parts: list[dict[str, np.ndarray]],
                           cat["accel_bias_mps2"], cat.get("odometer_scale"), cat["sigma_t_s"], cat["sigma_pos_n_m"],
                           cat["sigma_att_rad"], first.alignment, sum(r.iterations for r in results),
                           sum(r.initial_cost for r in results), sum(r.final_cost for r in results), counts,
-                          sorted(rejected, key=lambda r: r["t_s"]), timings)
+                          sorted(rejected, key=lambda r: r["t_s"]), timings,
+                          noise_components=_first_chunk_noise(first))

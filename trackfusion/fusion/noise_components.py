@@ -133,25 +133,34 @@ class GroupEstimate:
         return out
 
 
+#: builders whose rows are of another group's noise: a chunk's wheel-path pairs whose front point
+#: the previous chunk holds (fusion/chunks.py) are the wheel path's
+SAME_NOISE_AS = {"wheel_path_hand_over": "wheel_path"}
+
+
 @dataclass
 class NoiseComponents:
     """The variance factors applied per group and component, and the last estimates;
-    ``quanta_m``: the quantum of a group's readings, by group (module docstring)."""
+    ``quanta_m``: the quantum of a group's readings, by group (module docstring); ``fixed``:
+    the factors are given (a later chunk applies its run's first chunk's, fusion/chunks.py) and
+    not estimated."""
 
     applied: dict[str, dict[str, float]] = field(default_factory=dict)
     estimates: dict[str, dict[str, GroupEstimate]] = field(default_factory=dict)
     refits: int = 0
     seed: int = 0
     quanta_m: dict[str, float] = field(default_factory=dict)
+    fixed: bool = False
 
     def wrap(self, builders: list, labels: dict[str, np.ndarray]) -> list:
         """``builders`` (name, build) with the applied factors of their groups (the others as they are)."""
         out = []
         for name, build in builders:
-            if name not in COMPONENTS or name not in self.applied:
+            group = SAME_NOISE_AS.get(name, name)
+            if group not in COMPONENTS or group not in self.applied:
                 out.append((name, build))
                 continue
-            out.append((name, self._scaled(name, build, labels.get(name))))
+            out.append((name, self._scaled(group, build, labels.get(name))))
         return out
 
     def _scaled(self, name: str, build: Callable, labels: np.ndarray | None) -> Callable:

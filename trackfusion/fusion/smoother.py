@@ -36,7 +36,7 @@ from ..forked import usable_cpus
 from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, marginal_covariance,
                           part_marginal_covariances)
-from .wheel_path import wheel_path_builder
+from .wheel_path import WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 if TYPE_CHECKING:
@@ -46,6 +46,9 @@ DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
 #: marginal sigma: holds the seam continuous
 JOIN_TIGHT = 1e-3
+#: how far back [s] a chunk hands its keyframes over as the front wheel points of the next
+#: chunk's first wheel-path pairs: a wheelbase at 0.05 m/s and more
+WHEEL_FRONT_S = 60.0
 
 
 @dataclass
@@ -96,7 +99,11 @@ class HandOver:
     [m], or None; cov (9,9) or (12,12): joint marginal covariance of [pose (GTSAM tangent:
     rotation, position in ``b``), velocity, GNSS error] given the data up to t_s only (the next
     chunk holds the data after it: no information counted twice); bias_var (6,) and scale_var
-    (or None) the marginal variances of the bias and scale there, on the same data.
+    (or None) the marginal variances of the bias and scale there, on the same data;
+    wheel_front: the chunk's keyframes in the :data:`WHEEL_FRONT_S` before ``t_s`` (times,
+    attitudes, positions), the front wheel points of the next chunk's first wheel-path pairs;
+    noise_applied: the groups' noise variance factors the chunk applied (estimated in the run's
+    first chunk, fusion/noise_components.py; None: not estimated), which the next applies too.
     """
 
     k: int
@@ -111,6 +118,8 @@ class HandOver:
     cov: np.ndarray
     bias_var: np.ndarray
     scale_var: float | None
+    wheel_front: WheelFront | None = None
+    noise_applied: dict[str, dict[str, float]] | None = None
 
     @property
     def alignment(self) -> Alignment:
@@ -545,10 +554,14 @@ class _Builder:
     def wheel_path(self, omega_ie_n: np.ndarray) -> None:
         """Rear wheel through the front wheel's points (fusion/wheel_path.py)."""
         K = self.t.size
-        n, build = wheel_path_builder(self.pb, self.t, self.idx, self.pos0, X(0) + np.arange(K),
-                                      V(0) + np.arange(K), omega_ie_n)
+        front = self.join.wheel_front if self.join is not None else None
+        n, build, n_front, build_front = wheel_path_builder(self.pb, self.t, self.idx, self.pos0, X(0) + np.arange(K),
+                                                            V(0) + np.arange(K), omega_ie_n, front)
         self.builders.append(("wheel_path", build))
         self._count("wheel_path", n)
+        if n_front:  # pairs whose front wheel point the previous chunk holds (fusion/chunks.py)
+            self.builders.append(("wheel_path_hand_over", build_front))
+            self._count("wheel_path_hand_over", n_front)
 
     def inclinometer(self) -> None:
         inc, st = self.pb.inclinometer, self.pb.factors.inclinometer
@@ -740,7 +753,8 @@ def _marginal_sigmas(covs: dict[int, np.ndarray], state: _State, t_key: np.ndarr
 @dataclass
 class _SoftJoin:
     """For the marginals of a chunk after the first: the tight hand-over priors (graph indices)
-    give way to one joint prior of the previous chunk's marginal covariance (keys, cov)."""
+    and the wheel-path pairs whose front point the previous chunk holds (as exact) give way to
+    one joint prior of the previous chunk's marginal covariance (keys, cov)."""
 
     remove: list[int] = field(default_factory=list)
     keys: list[int] = field(default_factory=list)
@@ -757,7 +771,8 @@ def _marginal_graph(G: _Graph, values: gtsam.Values, with_scale: bool, soft: _So
     graph = gtsam.NonlinearFactorGraph(G.graph)
     for i in soft.remove:
         graph.remove(i)
-    gfg = _linearize(_Graph(graph, G.builders, G.counts, G.gnss), values, with_scale)
+    builders = [(name, build) for name, build in G.builders if name != "wheel_path_hand_over"]
+    gfg = _linearize(_Graph(graph, builders, G.counts, G.gnss), values, with_scale)
     A = np.linalg.cholesky(np.linalg.inv(soft.cov)).T  # A^T A = information; b: zero at the estimate
     d = np.cumsum([0, 6, 3, 3][:len(soft.keys) + 1])
     blocks = [item for j, key in enumerate(soft.keys) for item in (key, A[:, d[j]:d[j + 1]])]
@@ -823,9 +838,11 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, kf: _Keyfra
     past = _past_graph(gfg, k, kf, gnss.t_s if gnss is not None else None)
     cov = joint_marginal_covariance(past, keys)
     var = np.diag(cov)
+    front = (t_key >= t_key[k] - WHEEL_FRONT_S) & (np.arange(t_key.size) < k)
     return HandOver(k, float(t_key[k]), state.R[k].copy(), state.p[k].copy(), state.v[k].copy(), bias,
                     float(state.s[seg[k]]) if with_scale else None, e_t, e, cov[:d, :d], var[d:d + 6],
-                    float(var[d + 6]) if with_scale else None)
+                    float(var[d + 6]) if with_scale else None,
+                    WheelFront(t_key[front].copy(), state.R[front].copy(), state.p[front].copy()))
 
 
 @dataclass
@@ -897,7 +914,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
 
     tic = time.perf_counter()
     partition = _partition(problem, kf)
-    components = _noise_components(problem, chunked=join is not None or hand_over_t_s is not None)
+    components = _noise_components(problem, join.noise_applied if join is not None else None)
     rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say)
     timings["solve_s"] = time.perf_counter() - tic
     noise = gates.final_noise(say)
@@ -911,6 +928,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
 
     tic = time.perf_counter()
     (sig_t, sig_pos, sig_att), hand_over = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
+    if hand_over is not None and components is not None:
+        hand_over = replace(hand_over, noise_applied={g: dict(c) for g, c in components.applied.items()})
     timings["marginals_s"] = time.perf_counter() - tic
     scale = state.s[kf.scale_seg] if kf.with_scale else None
     return SmootherResult(kf.t_s, kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
@@ -1146,7 +1165,7 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
         # the groups' noise from the same solve as the GNSS white noise's (one round for both,
         # as Helmert's estimate takes every component at once); not while readings were rejected
-        if components is not None and not rejected:
+        if components is not None and not components.fixed and not rejected:
             refit |= _estimate_components(components, G, sol, gates.labels())
         if not (rejected or refit):
             if gates.gating or reweighted:  # settled: converge to the configured tolerance (the same graph: carry on)
@@ -1188,12 +1207,16 @@ def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", parti
     return sigmas, hand_over
 
 
-def _noise_components(problem: FusionProblem, chunked: bool) -> "nc.NoiseComponents | None":
+def _noise_components(problem: FusionProblem, carried: dict[str, dict[str, float]] | None
+                      ) -> "nc.NoiseComponents | None":
     """The groups' noise estimation of a solve (fusion/noise_components.py; None: off), the
-    odometer's tick length from its log as its quantum. A run in chunks keeps the configured
-    noise (a chunk's own estimate would break the hand-over's continuity with its neighbours)."""
-    if not problem.factors.noise_estimation.enabled or chunked:
+    odometer's tick length from its log as its quantum. ``carried``: a later chunk's (fusion/
+    chunks.py): the factors the run's first chunk estimated, applied as they are (a chunk's own
+    estimate would change the noise model at each join)."""
+    if not problem.factors.noise_estimation.enabled:
         return None
+    if carried is not None:
+        return nc.NoiseComponents(applied={g: dict(c) for g, c in carried.items()}, fixed=True)
     odometer = problem.odometer if problem.factors.odometer.enabled else None
     return nc.NoiseComponents(quanta_m={"odometer": odometer_quantum_m(odometer)} if odometer is not None else {})
 

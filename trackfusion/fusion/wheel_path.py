@@ -126,6 +126,15 @@ def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple
     return dR, dp
 
 
+class WheelFront(NamedTuple):
+    """Keyframes held fixed as front wheel points (a previous chunk's, fusion/chunks.py):
+    t_s (H,) [s] before the first keyframe; R_nb (H,3,3); pos_n (H,3) [m]."""
+
+    t_s: np.ndarray
+    R_nb: np.ndarray
+    pos_n: np.ndarray
+
+
 class WheelPathData(NamedTuple):
     """What the wheel-path factors of M pairs hold fixed while the states change (built once):
     tau_s (M,) [s] the rear time after keyframe j; dR (M,3,3), dp (M,3) [m] from
@@ -172,32 +181,45 @@ def wheel_path_residual(R_k: np.ndarray, p_k: np.ndarray, R_j: np.ndarray, p_j: 
 
 
 def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: np.ndarray, keys_x: np.ndarray,
-                       keys_v: np.ndarray, omega_ie_n: np.ndarray):
+                       keys_v: np.ndarray, omega_ie_n: np.ndarray, front: WheelFront | None = None):
     """The factors of a :class:`~trackfusion.fusion.problem.FusionProblem` with an odometer on
     keyframes ``t_key`` (K,) at IMU samples ``key_idx`` (K,); pos0_n (K,3) [m] the initial
     positions (for gravity); keys_x, keys_v (K,) the pose and velocity keys of the keyframes;
-    omega_ie_n (3,) [rad/s] (zero when the Earth rate is switched off).
+    omega_ie_n (3,) [rad/s] (zero when the Earth rate is switched off); ``front``: keyframes
+    before ``t_key[0]`` held fixed (a previous chunk's), whose points the rear wheel reaches
+    after ``t_key[0]`` (the odometer must cover them).
 
-    Returns ``(M, build)``: the number of factors and ``build(state) -> LinearBlocks`` at an
-    estimate with arrays ``R`` (K,3,3), ``p`` (K,3), ``v`` (K,3) (fusion/smoother.py ``_State``).
+    Returns ``(M, build, M_front, build_front)``: the number of factors between keyframes and
+    ``build(state) -> LinearBlocks`` at an estimate with arrays ``R`` (K,3,3), ``p`` (K,3), ``v``
+    (K,3) (fusion/smoother.py ``_State``); the same for the pairs whose front point is held
+    (their blocks on the rear keyframe's pose and velocity only; ``build_front`` None without).
     """
     from .. import geodesy
     from .factors import LinearBlocks
     tr, st = problem.trolley, problem.factors.wheel_path
-    pairs = rear_times(t_key, problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
-    every = pairs.k % st.keyframe_step == 0
-    pairs = WheelPairs(pairs.k[every], pairs.j[every], pairs.tau_s[every])
-    k, j = pairs.k, pairs.j
-    dR, dp = body_deltas(problem.imu, key_idx[j], pairs.tau_s)
+    held = front if front is not None and front.t_s.size else WheelFront(np.zeros(0), np.zeros((0, 3, 3)),
+                                                                          np.zeros((0, 3)))
+    H = held.t_s.size
+    pairs = rear_times(np.r_[held.t_s, t_key], problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
+    keep = ((pairs.k - H) % st.keyframe_step == 0) & (pairs.j >= H)  # the rear wheel in this problem's time
+    k, j, tau_s = pairs.k[keep] - H, pairs.j[keep] - H, pairs.tau_s[keep]
+    dR, dp = body_deltas(problem.imu, key_idx[j], tau_s)
     g_n = geodesy.gravity_n(pos0_n[j], problem.origin)
     half = 0.5 * tr.wheelbase_m
     front_b, rear_b = tr.lever_arm_b(np.array([half, 0.0, 0.0])), tr.lever_arm_b(np.array([-half, 0.0, 0.0]))
-    keys = [keys_x[k], keys_x[j], keys_v[j]]
     sigma = np.full((k.size, 2), st.sigma_mm * 1e-3)
-    data = WheelPathData(pairs.tau_s, dR, dp, g_n, omega_ie_n, front_b, rear_b, tr.R_vb)
+    data = WheelPathData(tau_s, dR, dp, g_n, omega_ie_n, front_b, rear_b, tr.R_vb)
+    inside, back = k >= 0, k < 0
+    data_in, data_back = (data._replace(tau_s=tau_s[m], dR=dR[m], dp=dp[m], gravity_n=g_n[m]) for m in (inside, back))
+    ki, ji, kb, jb = k[inside], j[inside], k[back] + H, j[back]
+    keys = [keys_x[ki], keys_x[ji], keys_v[ji]]
 
     def build(state) -> LinearBlocks:
-        r, J = wheel_path_residual(state.R[k], state.p[k], state.R[j], state.p[j], state.v[j], data)
-        return LinearBlocks(keys, J, r, sigma)
+        r, J = wheel_path_residual(state.R[ki], state.p[ki], state.R[ji], state.p[ji], state.v[ji], data_in)
+        return LinearBlocks(keys, J, r, sigma[inside])
 
-    return k.size, build
+    def build_front(state) -> LinearBlocks:
+        r, J = wheel_path_residual(held.R_nb[kb], held.pos_n[kb], state.R[jb], state.p[jb], state.v[jb], data_back)
+        return LinearBlocks([keys_x[jb], keys_v[jb]], J[1:], r, sigma[back])
+
+    return int(ki.size), build, int(kb.size), build_front if kb.size else None

@@ -405,7 +405,7 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
                     "odometer_wheel": cfg.trolley.odometer_wheel},
         "sensors": sensors,
         "factors": factors,
-        "keyframes": {"spacing_s": WHEEL_PATH_KEYFRAME_SPACING_S, "spacing_without_wheel_path_s": 0.1}
+        "keyframes": {"spacing_s": WHEEL_PATH_KEYFRAME_SPACING_S}
         if wheel_path else {"spacing_s": 0.1},
         "outputs": {"trajectory_rate_hz": cfg.truth.rate_hz, "geometry_step_m": cfg.truth.geometry_step_m},
     }

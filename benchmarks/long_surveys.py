@@ -1,0 +1,147 @@
+"""Benchmark: the accuracy of long surveys, smoothed in chunks, against a 1 h survey.
+
+Usage: python benchmarks/long_surveys.py [--seeds 1 2 3] [--passes 4 8 41] [--out FILE] [--append]
+The ``open-track-gnss`` scenario (1 km of track driven back and forth at 3 m/s, 200 Hz
+navigation-grade IMU, odometer, 1 Hz RTK, the wheel-path factor; 14.7 min a round trip) made
+longer with ``motion.passes``: 4 round trips (59 min: one batch), 8 (1 h 58 min: two chunks of
+the default ``smoother.chunk_s`` 3600 s) and 41 (10 h 2 min: eleven chunks). Each survey is run
+with its generated pipeline (the defaults) in a fresh process: its 5 m vertical / lateral MSE
+and ADEV (the run's own evaluation against truth.csv), its wall time and peak memory (VmHWM),
+and, for the chunked runs, the RMS of the 5 m error differences (error 5 m of travel further
+minus the error here, lateral and vertical) over the pairs straddling a join, starting within
+30 s of one, and elsewhere (benchmarks/chunk_seams.py's pairs). Targets (issue 17): 5 m
+vertical MSE within 10 % of the 1 h survey's; errors near a join no larger than elsewhere.
+Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes
+benchmarks/results/long_surveys.json; with ``--append`` the runs are added to those already in
+the file (a run of the same seed and passes replaced) and the summary is made over all of them
+(e.g. the 10 h survey of one seed after the 1 h and 2 h ones of three).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from chunk_seams import errors_of, join_masks, pairs, rms_by_mask
+from provenance import git_commit
+
+RESULTS = Path(__file__).resolve().parent / "results" / "long_surveys.json"
+CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
+
+_CHILD = """
+import json, sys, time
+from trackfusion.pipeline import load_pipeline, run
+tic = time.perf_counter()
+r = run(load_pipeline(sys.argv[1]), sys.argv[2], force=True)
+ra = r.metrics["relative_accuracy"]
+print(json.dumps({"wall_s": time.perf_counter() - tic, "duration_s": r.metrics["duration_s"],
+                  "imu_samples": r.metrics["imu_samples"], "factors": r.metrics["factors"],
+                  **{f"{c}_{k}_mm": ra[c][f"{k}_at_threshold_mm"] for c in ("vertical", "lateral")
+                     for k in ("mse", "adev")},
+                  "peak_rss_mb": int(next(l for l in open('/proc/self/status')
+                                          if l.startswith('VmHWM')).split()[1]) / 1024}))
+"""
+
+
+def simulated(seed: int, passes: int) -> Path:
+    from trackfusion.simulation.scenarios import simulate_to_dir
+    out = CACHE / f"open-track-gnss-{seed}-{passes}passes"
+    if not (out / "pipeline.yaml").is_file():
+        simulate_to_dir("open-track-gnss", out, seed=seed, overrides=[f"motion.passes={passes}"])
+    return out
+
+
+def run_survey(sim: Path) -> dict:
+    """``trackfusion run`` of ``sim``'s pipeline.yaml in a fresh process (its figures as JSON)."""
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(sim / "pipeline.yaml"), str(sim / "out-long")],
+                         check=True, capture_output=True, text=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-long") -> dict:
+    """RMS [mm] of the 5 m error differences, lateral / vertical, over the pairs across the
+    joins, starting within 30 s of one and elsewhere (benchmarks/chunk_seams.py), and their counts."""
+    from trackfusion.fusion.chunks import join_times
+    from trackfusion.sensors.fileio import read_csv_table
+    truth = read_csv_table(sim / "truth.csv")
+    t, err = errors_of(sim, out, truth)
+    i, j = pairs(t, np.interp(t, truth["t_s"], truth["chainage_m"]))
+    joins = join_times(t[0], t[-1], chunk_s, overlap_s)
+    masks = join_masks(t, i, j, joins)
+    return {"joins_s": joins.tolist(), **{f"{k}_pairs": int(m.sum()) for k, m in masks.items()},
+            **rms_by_mask(err, i, j, masks)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--passes", type=int, nargs="+", default=[4, 8, 41])
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--append", action="store_true", help="add the runs to those in --out")
+    args = ap.parse_args()
+    import yaml
+    from trackfusion.fusion.settings import SmootherSettings
+    rows = []
+    for seed in args.seeds:
+        for passes in args.passes:
+            sim = simulated(seed, passes)
+            cfg = SmootherSettings(**yaml.safe_load((sim / "pipeline.yaml").read_text()).get("smoother", {}))
+            row = {"seed": seed, "passes": passes, **run_survey(sim)}
+            if cfg.chunk_s is not None and row["duration_s"] > cfg.chunk_s + cfg.chunk_overlap_s:
+                row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    if args.append and args.out.is_file():
+        new = {(r["seed"], r["passes"]) for r in rows}
+        rows = [r for r in json.loads(args.out.read_text())["runs"] if (r["seed"], r["passes"]) not in new] + rows
+        rows.sort(key=lambda r: (r["passes"], r["seed"]))
+    all_passes = sorted({r["passes"] for r in rows})
+    summary = {}
+    for passes in all_passes:
+        sel = [r for r in rows if r["passes"] == passes]
+        seeds = [r["seed"] for r in sel]
+        summary[str(passes)] = {f"{c}_{k}_mm_mean": float(np.mean([r[f"{c}_{k}_mm"] for r in sel]))
+                                for c in ("vertical", "lateral") for k in ("mse", "adev")}
+        summary[str(passes)].update(hours=float(np.mean([r["duration_s"] for r in sel]) / 3600.0), seeds=seeds)
+        joined = [r["joins"] for r in sel if "joins" in r]
+        for label in ("straddling", "within_30s", "elsewhere"):  # pooled over the seeds, by pairs
+            have = [j for j in joined if f"{label}_lateral_mm" in j]
+            n = sum(j[f"{label}_pairs"] for j in have)
+            for c in ("lateral", "vertical"):
+                if n:
+                    summary[str(passes)][f"joins_{label}_{c}_mm"] = float(np.sqrt(
+                        sum(j[f"{label}_pairs"] * j[f"{label}_{c}_mm"] ** 2 for j in have) / n))
+    by_passes = {p: {r["seed"]: r for r in rows if r["passes"] == p} for p in all_passes}
+    print("open-track-gnss, mean 5 m MSE / ADEV [mm], vertical; lateral; the vertical MSE over the shortest "
+          "survey's of the same seeds")
+    for passes, s in summary.items():
+        base = [by_passes[all_passes[0]][seed]["vertical_mse_mm"] for seed in s["seeds"]]
+        s["vertical_mse_ratio"] = s["vertical_mse_mm_mean"] / float(np.mean(base))
+        print(f"{passes:>3} passes ({s['hours']:.2f} h, seeds {s['seeds']}): {s['vertical_mse_mm_mean']:.4f} / "
+              f"{s['vertical_adev_mm_mean']:.4f}; {s['lateral_mse_mm_mean']:.4f} / {s['lateral_adev_mm_mean']:.4f};"
+              f" x {s['vertical_mse_ratio']:.3f}")
+    for r in rows:
+        if "joins" in r:
+            j = r["joins"]
+            cells = "  ".join(f"{label} {j[f'{label}_lateral_mm']:.3f}/{j[f'{label}_vertical_mm']:.3f}"
+                              f" ({j[f'{label}_pairs']})" for label in ("straddling", "within_30s", "elsewhere")
+                              if f"{label}_lateral_mm" in j)
+            print(f"seed {r['seed']}, {r['passes']} passes, {len(j['joins_s'])} joins, 5 m error differences "
+                  f"lateral/vertical [mm] (pairs): {cells}")
+    result = {"commit": git_commit(), "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(),
+              "runs": rows, "summary": summary, "target_vertical_mse_ratio": 1.1}
+    args.out.parent.mkdir(exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
