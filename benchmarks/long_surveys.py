@@ -80,6 +80,16 @@ def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-lo
             **rms_by_mask(err, i, j, masks)}
 
 
+def with_joins(row: dict, sim: Path) -> None:
+    """Add to a run's ``row`` the join figures of its output (:func:`join_figures`) when it was
+    smoothed in chunks (its pipeline's ``smoother`` settings)."""
+    import yaml
+    from trackfusion.fusion.settings import SmootherSettings
+    cfg = SmootherSettings(**yaml.safe_load((sim / "pipeline.yaml").read_text()).get("smoother", {}))
+    if cfg.chunk_s is not None and row["duration_s"] > cfg.chunk_s + cfg.chunk_overlap_s:
+        row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
@@ -87,22 +97,20 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--append", action="store_true", help="add the runs to those in --out")
     args = ap.parse_args()
-    import yaml
-    from trackfusion.fusion.settings import SmootherSettings
     rows = []
     for seed in args.seeds:
         for passes in args.passes:
             sim = simulated(seed, passes)
-            cfg = SmootherSettings(**yaml.safe_load((sim / "pipeline.yaml").read_text()).get("smoother", {}))
             row = {"seed": seed, "passes": passes, **run_survey(sim)}
-            if cfg.chunk_s is not None and row["duration_s"] > cfg.chunk_s + cfg.chunk_overlap_s:
-                row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s)
+            with_joins(row, sim)
             rows.append(row)
             print(json.dumps(row), flush=True)
     if args.append and args.out.is_file():
         new = {(r["seed"], r["passes"]) for r in rows}
-        rows = [r for r in json.loads(args.out.read_text())["runs"] if (r["seed"], r["passes"]) not in new] + rows
-        rows.sort(key=lambda r: (r["passes"], r["seed"]))
+        kept = [r for r in json.loads(args.out.read_text())["runs"] if (r["seed"], r["passes"]) not in new]
+        for r in kept:  # their join figures again, as this script computes them now
+            with_joins(r, simulated(r["seed"], r["passes"]))
+        rows = sorted(kept + rows, key=lambda r: (r["passes"], r["seed"]))
     all_passes = sorted({r["passes"] for r in rows})
     summary = {}
     for passes in all_passes:

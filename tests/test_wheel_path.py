@@ -145,3 +145,45 @@ def test_wheel_path_sharpens_the_short_wave_trajectory(tmp_path):
     for axis in ("vertical", "lateral"):
         with_, without = (out[on]["relative_accuracy"][axis]["adev_at_threshold_mm"] for on in (True, False))
         assert with_ < 0.67 * without, (axis, with_, without)
+
+
+def test_held_front_points_give_a_later_chunk_the_whole_runs_pairs(tmp_path):
+    """A later chunk's wheel path (fusion/chunks.py): with the keyframes of the minute before its
+    start held as front wheel points, its pairs are the whole run's pairs whose rear keyframe is
+    in it, with the same residuals and rear Jacobians (any state: here a random one); the pairs
+    whose front keyframe is before the start are ``wheel_path_hand_over``'s."""
+    from types import SimpleNamespace
+
+    from tests.surveys import short_open_track_problem
+    from trackfusion.fusion.chunks import sub_problem
+    from trackfusion.fusion.smoother import WHEEL_FRONT_S
+
+    prob = short_open_track_problem(tmp_path, seed=3, ideal=True)
+    key_idx = keyframe_indices(prob.imu.t_s, 0.2)
+    t_key = prob.imu.t_s[key_idx]
+    K = t_key.size
+    rng = np.random.default_rng(5)
+    state = SimpleNamespace(R=_rot(rng, K), p=rng.normal(0.0, 100.0, (K, 3)), v=rng.normal(0.0, 3.0, (K, 3)))
+    omega = geodesy.earth_rate_n(prob.origin)
+    keys = np.arange(K, dtype=np.int64)
+    pos0 = state.p.copy()
+    n, build, n_front, _ = wp.wheel_path_builder(prob, t_key, key_idx, pos0, keys, keys + 10**6, omega)
+    assert n_front == 0 and n > 500
+    whole = build(state)
+    k_whole, j_whole = whole.keys[0], whole.keys[1]
+    c = int(np.searchsorted(t_key, 80.0)) // 2 * 2  # on the way out at 3 m/s; even: the same keyframe_step phase
+    held = (t_key >= t_key[c] - WHEEL_FRONT_S) & (keys < c)
+    front = wp.WheelFront(t_key[held], state.R[held], state.p[held])
+    sub = sub_problem(prob, int(key_idx[c]), prob.imu.t_s.size - 1, WHEEL_FRONT_S)
+    n2, build2, n2_front, build2_front = wp.wheel_path_builder(sub, t_key[c:], key_idx[c:] - key_idx[c], pos0[c:],
+                                                               keys[c:], keys[c:] + 10**6, omega, front)
+    later = SimpleNamespace(R=state.R[c:], p=state.p[c:], v=state.v[c:])
+    inside, back = build2(later), build2_front(later)
+    sel_in, sel_back = (k_whole >= c) & (j_whole >= c), (k_whole < c) & (j_whole >= c)
+    assert n2 == sel_in.sum() and n2_front == sel_back.sum() >= 1
+    np.testing.assert_array_equal(inside.keys[0], k_whole[sel_in])
+    np.testing.assert_array_equal(back.keys[0], j_whole[sel_back])
+    np.testing.assert_allclose(inside.residual, whole.residual[sel_in], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(back.residual, whole.residual[sel_back], rtol=0, atol=1e-12)
+    for J_back, J_whole in zip(back.jacobians, whole.jacobians[1:]):
+        np.testing.assert_allclose(J_back, J_whole[sel_back], rtol=0, atol=1e-9)
