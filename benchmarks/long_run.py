@@ -1,6 +1,6 @@
 """Benchmark: peak memory of ``trackfusion run`` on 2, 10 and 20 km runs at 500 Hz (chunks).
 
-Usage: python benchmarks/long_run.py [--km 2 10 20] [--chunk-s 300] [--overlap-s 60]
+Usage: python benchmarks/long_run.py [--km 2 10 20] [--chunk-s 300] [--overlap-s 60] [--out FILE]
 A simple straight open-track survey made long with ``--set``: the 1 km ``open-track-gnss``
 track driven back and forth (one round trip = 2.04 km; 60 s hold before each), navigation-grade
 IMU at 500 Hz, odometer at 100 Hz, GNSS at 0.2 Hz, trolley at 5 m/s (fewer samples to simulate
@@ -86,6 +86,7 @@ def main() -> None:
     ap.add_argument("--chunk-s", type=float, default=300.0)
     ap.add_argument("--overlap-s", type=float, default=60.0)
     ap.add_argument("--batch", action="store_true", help="also the shortest run as one batch")
+    ap.add_argument("--out", type=Path, default=RESULTS, help="JSON result file")
     args = ap.parse_args()
     rows = []
     for km in args.km:
@@ -107,9 +108,9 @@ def main() -> None:
               "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(), "chunk_s": args.chunk_s,
               "overlap_s": args.overlap_s, "runs": rows, "peak_ratio_longest_to_shortest": ratio,
               "target_ratio": 1.5}
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {RESULTS}")
+    args.out.parent.mkdir(exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.out}")
 
 
 if __name__ == "__main__":

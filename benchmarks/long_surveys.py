@@ -1,6 +1,7 @@
 """Benchmark: the accuracy of long surveys, smoothed in chunks, against a 1 h survey.
 
-Usage: python benchmarks/long_surveys.py [--seeds 1 2 3] [--passes 4 8 41] [--out FILE] [--append]
+Usage: python benchmarks/long_surveys.py [--seeds 1 2 3] [--passes 4 8 41] [--out FILE] [--append] [--one-batch]
+       python benchmarks/long_surveys.py --summary   (the summary of the runs in --out again)
 The ``open-track-gnss`` scenario (1 km of track driven back and forth at 3 m/s, 200 Hz
 navigation-grade IMU, odometer, 1 Hz RTK, the wheel-path factor; 14.7 min a round trip) made
 longer with ``motion.passes``: 4 round trips (59 min: one batch), 8 (1 h 58 min: two chunks of
@@ -13,8 +14,10 @@ minus the error here, lateral and vertical) over the pairs straddling a join, st
 vertical MSE within 10 % of the 1 h survey's; errors near a join no larger than elsewhere.
 Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes
 benchmarks/results/long_surveys.json; with ``--append`` the runs are added to those already in
-the file (a run of the same seed and passes replaced) and the summary is made over all of them
-(e.g. the 10 h survey of one seed after the 1 h and 2 h ones of three).
+the file (a run of the same seed, passes and kind replaced) and the summary is made over all of
+them (e.g. the 10 h survey of one seed after the 1 h and 2 h ones of three); with ``--one-batch``
+the surveys are run as one batch (``smoother.chunk_s: null``: what the chunks give away; the
+figures at the default joins' times as well).
 """
 
 from __future__ import annotations
@@ -59,11 +62,23 @@ def simulated(seed: int, passes: int) -> Path:
     return out
 
 
-def run_survey(sim: Path) -> dict:
-    """``trackfusion run`` of ``sim``'s pipeline.yaml in a fresh process (its figures as JSON)."""
-    out = subprocess.run([sys.executable, "-c", _CHILD, str(sim / "pipeline.yaml"), str(sim / "out-long")],
+def run_survey(sim: Path, one_batch: bool = False) -> dict:
+    """``trackfusion run`` of ``sim``'s pipeline.yaml in a fresh process (its figures as JSON);
+    ``one_batch``: with ``smoother.chunk_s: null`` (output in ``out-long-batch``)."""
+    import yaml
+    pipeline = sim / "pipeline.yaml"
+    if one_batch:
+        data = yaml.safe_load(pipeline.read_text())
+        data.setdefault("smoother", {})["chunk_s"] = None
+        pipeline = sim / "pipeline-one-batch.yaml"
+        pipeline.write_text(yaml.safe_dump(data))
+    out = subprocess.run([sys.executable, "-c", _CHILD, str(pipeline), str(sim / _out_dir(one_batch))],
                          check=True, capture_output=True, text=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _out_dir(one_batch: bool) -> str:
+    return "out-long-batch" if one_batch else "out-long"
 
 
 def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-long") -> dict:
@@ -81,13 +96,18 @@ def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-lo
 
 
 def with_joins(row: dict, sim: Path) -> None:
-    """Add to a run's ``row`` the join figures of its output (:func:`join_figures`) when it was
-    smoothed in chunks (its pipeline's ``smoother`` settings)."""
+    """Add to a run's ``row`` the figures (:func:`join_figures`) at the joins of the survey's
+    default chunks (its pipeline.yaml's ``smoother``), when it has any (a one-batch run's at the
+    same times, for comparison)."""
     import yaml
     from trackfusion.fusion.settings import SmootherSettings
     cfg = SmootherSettings(**yaml.safe_load((sim / "pipeline.yaml").read_text()).get("smoother", {}))
     if cfg.chunk_s is not None and row["duration_s"] > cfg.chunk_s + cfg.chunk_overlap_s:
-        row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s)
+        row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s, _out_dir(row["run"] == "one batch"))
+
+
+def _label(row: dict) -> str:
+    return str(row["passes"]) + (", one batch" if row["run"] == "one batch" else "")
 
 
 def main() -> None:
@@ -96,53 +116,59 @@ def main() -> None:
     ap.add_argument("--passes", type=int, nargs="+", default=[4, 8, 41])
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--append", action="store_true", help="add the runs to those in --out")
+    ap.add_argument("--one-batch", action="store_true", help="the surveys as one batch (smoother.chunk_s: null)")
+    ap.add_argument("--summary", action="store_true", help="no new run: the summary of those in --out again")
     args = ap.parse_args()
     rows = []
-    for seed in args.seeds:
+    run = "one batch" if args.one_batch else "default"
+    args.append |= args.summary
+    for seed in [] if args.summary else args.seeds:
         for passes in args.passes:
             sim = simulated(seed, passes)
-            row = {"seed": seed, "passes": passes, **run_survey(sim)}
+            row = {"seed": seed, "passes": passes, "run": run, **run_survey(sim, args.one_batch)}
             with_joins(row, sim)
             rows.append(row)
             print(json.dumps(row), flush=True)
     if args.append and args.out.is_file():
-        new = {(r["seed"], r["passes"]) for r in rows}
-        kept = [r for r in json.loads(args.out.read_text())["runs"] if (r["seed"], r["passes"]) not in new]
+        new = {(r["seed"], r["passes"], r["run"]) for r in rows}
+        kept = [r for r in (dict(r, run=r.get("run", "default")) for r in json.loads(args.out.read_text())["runs"])
+                if (r["seed"], r["passes"], r["run"]) not in new]
         for r in kept:  # their join figures again, as this script computes them now
             with_joins(r, simulated(r["seed"], r["passes"]))
-        rows = sorted(kept + rows, key=lambda r: (r["passes"], r["seed"]))
-    all_passes = sorted({r["passes"] for r in rows})
+        rows = sorted(kept + rows, key=lambda r: (r["passes"], r["run"] != "default", r["seed"]))
     summary = {}
-    for passes in all_passes:
-        sel = [r for r in rows if r["passes"] == passes]
-        seeds = [r["seed"] for r in sel]
-        summary[str(passes)] = {f"{c}_{k}_mm_mean": float(np.mean([r[f"{c}_{k}_mm"] for r in sel]))
-                                for c in ("vertical", "lateral") for k in ("mse", "adev")}
-        summary[str(passes)].update(hours=float(np.mean([r["duration_s"] for r in sel]) / 3600.0), seeds=seeds)
+    for label in dict.fromkeys(_label(r) for r in rows):
+        sel = [r for r in rows if _label(r) == label]
+        summary[label] = {f"{c}_{k}_mm_mean": float(np.mean([r[f"{c}_{k}_mm"] for r in sel]))
+                          for c in ("vertical", "lateral") for k in ("mse", "adev")}
+        summary[label].update(hours=float(np.mean([r["duration_s"] for r in sel]) / 3600.0),
+                              seeds=[r["seed"] for r in sel], wall_s_mean=float(np.mean([r["wall_s"] for r in sel])),
+                              peak_rss_mb_max=float(max(r["peak_rss_mb"] for r in sel)))
         joined = [r["joins"] for r in sel if "joins" in r]
-        for label in ("straddling", "within_30s", "elsewhere"):  # pooled over the seeds, by pairs
-            have = [j for j in joined if f"{label}_lateral_mm" in j]
-            n = sum(j[f"{label}_pairs"] for j in have)
+        for name in ("straddling", "within_30s", "elsewhere"):  # pooled over the seeds, by pairs
+            have = [j for j in joined if f"{name}_lateral_mm" in j]
+            n = sum(j[f"{name}_pairs"] for j in have)
             for c in ("lateral", "vertical"):
                 if n:
-                    summary[str(passes)][f"joins_{label}_{c}_mm"] = float(np.sqrt(
-                        sum(j[f"{label}_pairs"] * j[f"{label}_{c}_mm"] ** 2 for j in have) / n))
-    by_passes = {p: {r["seed"]: r for r in rows if r["passes"] == p} for p in all_passes}
+                    summary[label][f"joins_{name}_{c}_mm"] = float(np.sqrt(
+                        sum(j[f"{name}_pairs"] * j[f"{name}_{c}_mm"] ** 2 for j in have) / n))
+    shortest = min(r["passes"] for r in rows)
+    base = {r["seed"]: r["vertical_mse_mm"] for r in rows if r["passes"] == shortest and r["run"] == "default"}
     print("open-track-gnss, mean 5 m MSE / ADEV [mm], vertical; lateral; the vertical MSE over the shortest "
-          "survey's of the same seeds")
-    for passes, s in summary.items():
-        base = [by_passes[all_passes[0]][seed]["vertical_mse_mm"] for seed in s["seeds"]]
-        s["vertical_mse_ratio"] = s["vertical_mse_mm_mean"] / float(np.mean(base))
-        print(f"{passes:>3} passes ({s['hours']:.2f} h, seeds {s['seeds']}): {s['vertical_mse_mm_mean']:.4f} / "
+          "survey's of the same seeds (and of all seeds)")
+    for label, s in summary.items():
+        s["vertical_mse_ratio"] = s["vertical_mse_mm_mean"] / float(np.mean([base[seed] for seed in s["seeds"]]))
+        s["vertical_mse_ratio_to_all_shortest"] = s["vertical_mse_mm_mean"] / float(np.mean(list(base.values())))
+        print(f"{label:>14} passes ({s['hours']:.2f} h, seeds {s['seeds']}): {s['vertical_mse_mm_mean']:.4f} / "
               f"{s['vertical_adev_mm_mean']:.4f}; {s['lateral_mse_mm_mean']:.4f} / {s['lateral_adev_mm_mean']:.4f};"
-              f" x {s['vertical_mse_ratio']:.3f}")
+              f" x {s['vertical_mse_ratio']:.3f} (x {s['vertical_mse_ratio_to_all_shortest']:.3f})")
     for r in rows:
         if "joins" in r:
             j = r["joins"]
             cells = "  ".join(f"{label} {j[f'{label}_lateral_mm']:.3f}/{j[f'{label}_vertical_mm']:.3f}"
                               f" ({j[f'{label}_pairs']})" for label in ("straddling", "within_30s", "elsewhere")
                               if f"{label}_lateral_mm" in j)
-            print(f"seed {r['seed']}, {r['passes']} passes, {len(j['joins_s'])} joins, 5 m error differences "
+            print(f"seed {r['seed']}, {_label(r)} passes, {len(j['joins_s'])} joins, 5 m error differences "
                   f"lateral/vertical [mm] (pairs): {cells}")
     result = {"commit": git_commit(), "date": time.strftime("%Y-%m-%d"), "cpus": os.cpu_count(),
               "runs": rows, "summary": summary, "target_vertical_mse_ratio": 1.1}
