@@ -9,7 +9,9 @@ under ``$TMPDIR/trackfusion-bench``. Each run is a fresh process (peak = its VmH
 ``smoother.chunk_s`` / ``overlap_s`` as given, no reference and no fused.mcap; a second fresh
 process only reads the log (``read_log``), which shows how much of the peak is the log in
 memory. With ``--batch`` the shortest run is also made as one batch.
-Target (memory of a long survey): 20 km within 1.5 x the 2 km peak.
+Target (memory of a long survey): 20 km within 1.5 x the 2 km peak. Each run's
+``peak_tree_pss_mb``: the largest sum of the proportional set sizes of the run and its forked
+children (benchmarks/speed.py's sampling, every 0.2 s).
 Writes benchmarks/results/long_run.json.
 """
 
@@ -64,9 +66,21 @@ def simulated(passes: int) -> Path:
     return out
 
 
-def child(code: str, *args: str) -> dict:
-    out = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True, text=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+def child(code: str, *args: str, tree_pss: bool = False) -> dict:
+    """The JSON line a fresh process running ``code`` prints last; with ``tree_pss`` also
+    ``peak_tree_pss_mb``: the largest sum of the PSS of it and its forked children (speed.py)."""
+    if not tree_pss:
+        out = subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True, text=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+    from speed import _peak_tree_pss_mb
+    with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
+        proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=stdout, stderr=stderr, text=True)
+        peak = _peak_tree_pss_mb(proc)
+        stdout.seek(0)
+        stderr.seek(0)
+        if proc.wait():
+            sys.exit(f"trackfusion run failed ({proc.returncode}): {stderr.read().strip()}")
+        return {**json.loads(stdout.read().strip().splitlines()[-1]), "peak_tree_pss_mb": peak}
 
 
 def measure(sim: Path, chunk_s: float | None, overlap_s: float) -> dict:
@@ -77,7 +91,7 @@ def measure(sim: Path, chunk_s: float | None, overlap_s: float) -> dict:
     label = "batch" if chunk_s is None else f"chunk{chunk_s:g}"
     path = sim / f"pipeline-{label}.yaml"
     path.write_text(yaml.safe_dump(data))
-    return child(_CHILD_RUN, str(path), str(sim / f"out-{label}"))
+    return child(_CHILD_RUN, str(path), str(sim / f"out-{label}"), tree_pss=True)
 
 
 def main() -> None:
@@ -98,7 +112,8 @@ def main() -> None:
             row["batch"] = measure(sim, None, args.overlap_s)
         rows.append(row)
         print(f"{row['km']:5.1f} km, {row['duration_s'] / 60:5.1f} min, {row['imu_samples']} IMU samples, "
-              f"{row['hand_overs']} hand-overs: peak {row['peak_rss_mb']:.0f} MB (reading the log alone "
+              f"{row['hand_overs']} hand-overs: peak {row['peak_rss_mb']:.0f} MB, with its children (PSS) "
+              f"{row['peak_tree_pss_mb']:.0f} MB (reading the log alone "
               f"{row['read_only_peak_rss_mb']:.0f} MB), wall {row['wall_s']:.1f} s"
               + (f"; one batch: peak {row['batch']['peak_rss_mb']:.0f} MB, wall {row['batch']['wall_s']:.1f} s"
                  if "batch" in row else ""), flush=True)
