@@ -25,8 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -34,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from chunk_seams import errors_of, join_masks, pairs, rms_by_mask
+from long_run import _PEAK, child
 from provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results" / "long_surveys.json"
@@ -48,10 +47,8 @@ ra = r.metrics["relative_accuracy"]
 print(json.dumps({"wall_s": time.perf_counter() - tic, "duration_s": r.metrics["duration_s"],
                   "imu_samples": r.metrics["imu_samples"], "factors": r.metrics["factors"],
                   **{f"{c}_{k}_mm": ra[c][f"{k}_at_threshold_mm"] for c in ("vertical", "lateral")
-                     for k in ("mse", "adev")},
-                  "peak_rss_mb": int(next(l for l in open('/proc/self/status')
-                                          if l.startswith('VmHWM')).split()[1]) / 1024}))
-"""
+                     for k in ("mse", "adev")}, "peak_rss_mb": %s}))
+""" % _PEAK
 
 
 def simulated(seed: int, passes: int) -> Path:
@@ -72,9 +69,7 @@ def run_survey(sim: Path, one_batch: bool = False) -> dict:
         data.setdefault("smoother", {})["chunk_s"] = None
         pipeline = sim / "pipeline-one-batch.yaml"
         pipeline.write_text(yaml.safe_dump(data))
-    out = subprocess.run([sys.executable, "-c", _CHILD, str(pipeline), str(sim / _out_dir(one_batch))],
-                         check=True, capture_output=True, text=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child(_CHILD, str(pipeline), str(sim / _out_dir(one_batch)))
 
 
 def _out_dir(one_batch: bool) -> str:

@@ -11,8 +11,9 @@ marginal covariances the hand-over priors take the previous chunk's marginal cov
 instead. The wheel-path factor (fusion/wheel_path.py) crosses the seam as well: the previous
 chunk's keyframes of the minute before the join are handed over as the front wheel points of
 the pairs whose rear wheel point is in the new chunk (held fixed: the previous chunk's
-estimate there saw the data on both sides of the join). Each chunk's core is densified and decimated to the output rate at once, so the
-IMU-rate trajectory never exists for the whole run either; with ``on_dense`` the decimated
+estimate there saw the data on both sides of the join). Each chunk's core is densified and
+decimated to the output rate at once, so the IMU-rate trajectory never exists for the whole run
+either; with ``on_dense`` the decimated
 core goes to the caller chunk by chunk (the pipeline writes its trajectory.csv rows at once,
 fusion/output_rate.py) and is not kept here.
 

@@ -54,6 +54,7 @@ from scipy.stats import chi2
 
 from . import factors as fx
 from .normal_solve import TreeFactor, key_dim, solve_normal
+from .wheel_path import HAND_OVER_BUILDER
 
 #: degrees of freedom of the datasheet as a prior of each variance factor
 PRIOR_DOF = 8.0
@@ -135,7 +136,7 @@ class GroupEstimate:
 
 #: builders whose rows are of another group's noise: a chunk's wheel-path pairs whose front point
 #: the previous chunk holds (fusion/chunks.py) are the wheel path's
-SAME_NOISE_AS = {"wheel_path_hand_over": "wheel_path"}
+SAME_NOISE_AS = {HAND_OVER_BUILDER: "wheel_path"}
 
 
 @dataclass

@@ -183,8 +183,8 @@ class FactorSettings(StrictModel):
 
 class KeyframeSettings(StrictModel):
     """``spacing_s``: time between keyframes (the wheel-path factor lets them be sparser:
-    docs/solver_speed.md); ``bias_segment_s``: length of the segments over which one IMU bias state holds (random walk
-    between segments; fusion/preintegration.py)."""
+    docs/solver_speed.md); ``bias_segment_s``: length of the segments over which one IMU bias
+    state holds (random walk between segments; fusion/preintegration.py)."""
 
     spacing_s: float = Field(0.1, gt=0, le=5.0)
     bias_segment_s: float = Field(300.0, gt=0)

@@ -36,7 +36,7 @@ from ..forked import usable_cpus
 from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, marginal_covariance,
                           part_marginal_covariances)
-from .wheel_path import WheelFront, wheel_path_builder
+from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 if TYPE_CHECKING:
@@ -560,8 +560,8 @@ class _Builder:
         self.builders.append(("wheel_path", build))
         self._count("wheel_path", n)
         if n_front:  # pairs whose front wheel point the previous chunk holds (fusion/chunks.py)
-            self.builders.append(("wheel_path_hand_over", build_front))
-            self._count("wheel_path_hand_over", n_front)
+            self.builders.append((HAND_OVER_BUILDER, build_front))
+            self._count(HAND_OVER_BUILDER, n_front)
 
     def inclinometer(self) -> None:
         inc, st = self.pb.inclinometer, self.pb.factors.inclinometer
@@ -771,7 +771,7 @@ def _marginal_graph(G: _Graph, values: gtsam.Values, with_scale: bool, soft: _So
     graph = gtsam.NonlinearFactorGraph(G.graph)
     for i in soft.remove:
         graph.remove(i)
-    builders = [(name, build) for name, build in G.builders if name != "wheel_path_hand_over"]
+    builders = [(name, build) for name, build in G.builders if name != HAND_OVER_BUILDER]
     gfg = _linearize(_Graph(graph, builders, G.counts, G.gnss), values, with_scale)
     A = np.linalg.cholesky(np.linalg.inv(soft.cov)).T  # A^T A = information; b: zero at the estimate
     d = np.cumsum([0, 6, 3, 3][:len(soft.keys) + 1])

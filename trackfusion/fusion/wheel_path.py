@@ -126,6 +126,10 @@ def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple
     return dR, dp
 
 
+#: the builder name of the pairs whose front wheel point a previous chunk holds (fusion/chunks.py)
+HAND_OVER_BUILDER = "wheel_path_hand_over"
+
+
 class WheelFront(NamedTuple):
     """Keyframes held fixed as front wheel points (a previous chunk's, fusion/chunks.py):
     t_s (H,) [s] before the first keyframe; R_nb (H,3,3); pos_n (H,3) [m]."""
@@ -197,8 +201,7 @@ def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: 
     from .. import geodesy
     from .factors import LinearBlocks
     tr, st = problem.trolley, problem.factors.wheel_path
-    held = front if front is not None and front.t_s.size else WheelFront(np.zeros(0), np.zeros((0, 3, 3)),
-                                                                          np.zeros((0, 3)))
+    held = front if front is not None else WheelFront(np.zeros(0), np.zeros((0, 3, 3)), np.zeros((0, 3)))
     H = held.t_s.size
     pairs = rear_times(np.r_[held.t_s, t_key], problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
     keep = ((pairs.k - H) % st.keyframe_step == 0) & (pairs.j >= H)  # the rear wheel in this problem's time
