@@ -141,37 +141,77 @@ def test_huber_weights_cost_and_jacobian_factors(rng):
     assert graph.error(vv) == pytest.approx(expected, rel=1e-12)
 
 
+G_N = np.array([0.0, 0.0, -9.79])
+OMEGA_IE_N = np.array([0.0, 5.4e-5, 2.9e-5])
+
+
+def _prism_obs(lever, tau, t_imu, y, from_station, dR=None, dv=None, dp=None, w=None, omega_ie_n=OMEGA_IE_N):
+    n = tau.size
+    return fx.PrismObservations(lever, tau, t_imu, y, from_station,
+                                np.broadcast_to(np.eye(3), (n, 3, 3)) if dR is None else dR,
+                                np.zeros((n, 3)) if dv is None else dv, np.zeros((n, 3)) if dp is None else dp,
+                                np.zeros((n, 3)) if w is None else w, np.tile(G_N, (n, 1)), omega_ie_n)
+
+
 def test_prism_jacobians(rng):
     R, p, v = _rot(rng), rng.normal(0, 50, (K, 3)), rng.normal(0, 1, (K, 3))
     w, lever = rng.normal(0, 0.2, (K, 3)), np.array([0.05, -0.1, 1.0])
-    dt, t_imu = rng.uniform(-0.05, 0.05, K), rng.uniform(0, 3000, K)
+    tau, t_imu = rng.uniform(0.0, 0.2, K), rng.uniform(0, 3000, K)
     q = np.column_stack([rng.normal(0, 1e-4, (K, 6)), rng.normal(0, 0.01, K), rng.normal(0, 2, K)])
     y, d = rng.normal(0, 50, (K, 3)), rng.normal(0, 500, (K, 3))
-
-    obs = fx.PrismObservations(lever, dt, t_imu, y, d)
+    obs = _prism_obs(lever, tau, t_imu, y, d, so3_exp(rng.normal(0, 0.02, (K, 3))), rng.normal(0, 2, (K, 3)),
+                     rng.normal(0, 0.2, (K, 3)), w)
 
     def f(R_=R, p_=p, v_=v, q_=q):
-        return fx.prism_residual(R_, p_, v_, w, q_, obs)[0]
+        return fx.prism_residual(R_, p_, v_, q_, obs)[0]
 
-    r, (Jp, Jv, Jq) = fx.prism_residual(R, p, v, w, q, obs)
+    r, (Jp, Jv, Jq) = fx.prism_residual(R, p, v, q, obs)
     np.testing.assert_allclose(Jp, _pose_diff(lambda R_, p_: f(R_=R_, p_=p_), R, p, 3), atol=1e-6)
     np.testing.assert_allclose(Jv, _vec_diff(lambda v_: f(v_=v_), v, 3), atol=1e-6)
     np.testing.assert_allclose(Jq, _vec_diff(lambda q_: f(q_=q_), q, 3), atol=1e-5, rtol=1e-6)
 
 
 def test_prism_zero_residual_on_consistent_data(rng):
-    """A reading of the true prism, taken dt after the keyframe by a station whose point cloud is
-    rotated and shifted and whose clock is late, is explained exactly by the true correction."""
+    """A reading of the true prism, taken tau after the keyframe by a station whose point cloud is
+    rotated and shifted and whose clock is late, is explained exactly by the true correction
+    (a body moving at constant velocity: the IMU measures the reaction to gravity)."""
     R, p, v = _rot(rng), rng.normal(0, 50, (K, 3)), rng.normal(0, 1, (K, 3))
     lever, t_imu = np.array([0.0, 0.0, 1.0]), rng.uniform(0, 3000, K)
-    w = np.zeros((K, 3))
     centre = np.array([10.0, -5.0, 2.0])
     q = np.tile([2e-5, -1e-5, 3e-5, 0.002, -0.001, 0.003, 0.004, 1.5], (K, 1))
-    t_true = rng.uniform(-0.05, 0.05, K)
+    t_true = rng.uniform(0.0, 0.2, K)
     truth = p + R @ lever + v * t_true[:, None]
-    dt_nominal = t_true + q[:, 6] + 1e-6 * q[:, 7] * t_imu  # the reading's synchronised time
+    tau = t_true + q[:, 6] + 1e-6 * q[:, 7] * t_imu  # the reading's synchronised time after its keyframe
+    f_b = np.einsum("kji,j->ki", R, -G_N)  # R^T (-g): at constant velocity
     # the station sees the truth through the inverse of its correction (first order)
     y = truth - q[:, 3:6]
     y = y - np.cross(q[:, :3], y - centre)
-    r, _ = fx.prism_residual(R, p, v, w, q, fx.PrismObservations(lever, dt_nominal, t_imu, y, y - centre))
+    obs = _prism_obs(lever, tau, t_imu, y, y - centre, dv=f_b * tau[:, None], dp=0.5 * f_b * tau[:, None] ** 2,
+                     omega_ie_n=np.zeros(3))
+    r, _ = fx.prism_residual(R, p, v, q, obs)
     np.testing.assert_allclose(r, 0.0, atol=1e-6)  # second-order terms of the small rotation
+
+
+def test_prism_reading_of_an_accelerating_trolley_between_keyframes():
+    """A trolley speeding up at 0.3 m/s^2 (and pitching at 0.05 rad/s) read by a station 0.1 s
+    after the keyframe: the IMU samples in between (body_deltas) give the prism's position to
+    a micrometre; the keyframe's velocity alone would be 1.5 mm off (a tau^2 / 2)."""
+    from trackfusion.fusion.preintegration import body_deltas
+    from trackfusion.sensors.types import ImuData
+    dt, n, a, rate = 0.002, 200, 0.3, np.array([0.0, 0.05, 0.0])
+    t = dt * np.arange(1, n + 1)
+    # n-frame motion from rest at the keyframe (sample 10): p = a t^2 / 2 along x, R = Exp(rate t)
+    tk = t[10]
+    R_mid = so3_exp(np.outer(t - 0.5 * dt - tk, rate))  # a sample: the mean over the interval ending at it
+    f_b = np.einsum("kji,j->ki", R_mid, np.array([a, 0.0, 0.0]) - G_N)
+    imu = ImuData(t, np.tile(rate, (n, 1)), f_b)
+    tau = np.array([0.1])
+    lever = np.array([0.0, 0.0, 1.0])
+    dR, dv, dp = body_deltas(imu, np.array([10]), tau)
+    v0 = np.array([[1.2, 0.0, 0.0]])
+    obs = _prism_obs(lever, tau, np.array([100.0]), np.zeros((1, 3)), np.zeros((1, 3)), dR, dv, dp,
+                     omega_ie_n=np.zeros(3))
+    r, _ = fx.prism_residual(np.eye(3)[None], np.zeros((1, 3)), v0, np.zeros((1, 8)), obs)
+    R_t = so3_exp(rate * tau[0])
+    truth = v0[0] * tau[0] + 0.5 * np.array([a, 0.0, 0.0]) * tau[0] ** 2 + R_t @ lever
+    np.testing.assert_allclose(r[0], truth, atol=1e-6)

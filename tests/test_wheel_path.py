@@ -11,6 +11,7 @@ from tests.surveys import SHORT_OPEN_TRACK
 from tests.test_fusion_factors import _pose_diff, _rot, _vec_diff
 from trackfusion import geodesy
 from trackfusion.fusion import wheel_path as wp
+from trackfusion.fusion.preintegration import body_deltas
 from trackfusion.fusion.smoother import keyframe_indices
 from trackfusion.rotations import R_from_ypr
 from trackfusion.sensors.types import ImuData
@@ -57,16 +58,17 @@ def test_rear_times_from_the_odometer():
 
 def test_body_deltas_integrate_a_constant_rate_and_force():
     """A constant body rate w: dR = Exp(w tau); a constant specific force f without rotation:
-    dp = f tau^2 / 2; at any fraction of a sample interval."""
+    dv = f tau, dp = f tau^2 / 2; at any fraction of a sample interval."""
     from trackfusion.rotations import so3_exp
     t = np.arange(1, 101) * 0.005
     w, f = np.array([0.01, -0.02, 0.03]), np.array([0.1, 0.2, 9.8])
     tau = np.array([0.0, 0.0123, 0.1])
     turning = ImuData(t, np.tile(w, (100, 1)), np.tile(f, (100, 1)))
-    dR, _ = wp.body_deltas(turning, np.array([10, 10, 20]), tau)
+    dR, _, _ = body_deltas(turning, np.array([10, 10, 20]), tau)
     np.testing.assert_allclose(dR, so3_exp(np.outer(tau, w)), atol=1e-12)
     still = ImuData(t, np.zeros((100, 3)), np.tile(f, (100, 1)))
-    _, dp = wp.body_deltas(still, np.array([10, 10, 20]), tau)
+    _, dv, dp = body_deltas(still, np.array([10, 10, 20]), tau)
+    np.testing.assert_allclose(dv, np.outer(tau, f), atol=1e-14)
     np.testing.assert_allclose(dp, 0.5 * np.outer(tau**2, f), atol=1e-15)
 
 
@@ -87,7 +89,7 @@ def truth_residuals():
     front_b, rear_b = (R_vb.T @ (np.array([x, 0.0, 0.0]) - lever_v) for x in (half, -half))
     pairs = wp.rear_times(t_key, odo.t_s, odo.distance_m, geo.wheelbase_m)
     k, j = pairs.k, pairs.j
-    dR, dp = wp.body_deltas(imu, key_idx[j], pairs.tau_s)
+    dR, _, dp = body_deltas(imu, key_idx[j], pairs.tau_s)
     omega = geodesy.earth_rate_n(sim.origin)
     data = wp.WheelPathData(pairs.tau_s, dR, dp, geodesy.gravity_n(st["pos_n"][j], sim.origin), omega,
                             front_b, rear_b, R_vb)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..rotations import skew, so3_exp
 from ..sensors.imu import ImuSpec
 from ..sensors.types import ImuData
 
@@ -149,3 +150,50 @@ def preintegrate(imu: ImuData, key_idx: np.ndarray, noise: ImuNoise, gravity_n: 
             integrate(f[i], w[i], dt[i])
         pims.append(pim)
     return pims, params
+
+
+def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotation ``dR`` (M,3,3), velocity ``dv`` (M,3) [m/s] and position ``dp`` (M,3) [m]
+    integrated in the body frame of the IMU sample ``start_idx`` (M,) over ``tau_s`` (M,) [s]
+    (the samples after it, the last one for the part of its interval up to ``tau``; a sample is
+    the mean over the interval that ends at it), without gravity, bias and Earth rate: the
+    preintegration's ``deltaRij``, ``deltaVij`` and ``deltaPij`` over a fraction of an interval.
+    A ``tau_s`` <= 0 gives the identity and zeros."""
+    dt, f = sculling_compensated(imu)
+    n = imu.t_s.size
+    M = start_idx.size
+    dR = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
+    dv, dp = np.zeros((M, 3)), np.zeros((M, 3))
+    t_end = imu.t_s[start_idx] + tau_s
+    last = np.minimum(np.searchsorted(imu.t_s, t_end), n - 1)  # the sample whose interval holds t_end
+    for offset in range(1, int(np.max(last - start_idx, initial=0)) + 1):
+        s = np.minimum(start_idx + offset, n - 1)
+        h = np.clip(t_end - imu.t_s[s - 1], 0.0, dt[s])
+        a = np.einsum("kij,kj->ki", dR, f[s])
+        dp += dv * h[:, None] + 0.5 * a * h[:, None] ** 2
+        dv += a * h[:, None]
+        dR = dR @ so3_exp(imu.gyro_radps[s] * h[:, None])
+    return dR, dv, dp
+
+
+def point_after(R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray, tau_s: np.ndarray, dR: np.ndarray,
+                dp: np.ndarray, gravity_n: np.ndarray, omega_ie_n: np.ndarray, lever_b: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The point ``lever_b`` (body frame) at ``t' = t_j + tau`` reached from keyframe ``j`` with
+    the IMU's :func:`body_deltas` ``dR``, ``dp`` (the preintegration's mechanisation)::
+
+        p(t') = p_j + v_j tau + (g - 2 omega_ie x v_j) tau^2 / 2 + R_j dp
+        R(t') = Exp(-omega_ie tau) R_j dR,     P = p(t') + R(t') lever_b
+
+    R_j (M,3,3) ``R_nb``; p_j, v_j (M,3) [m, m/s]; tau_s (M,) [s]; gravity_n (M,3) [m/s^2];
+    omega_ie_n (3,) [rad/s]; lever_b (3,) or (M,3) [m]. Returns P (M,3) [m], R(t') (M,3,3) and
+    the Jacobians of P on keyframe j's attitude (right perturbation, (M,3,3)) and velocity
+    (M,3,3); on its position it is ``R_j`` (GTSAM's pose retraction)."""
+    tau = tau_s[:, None]
+    earth_R_j = so3_exp(-omega_ie_n[None, :] * tau) @ R_j  # j's body frame to n at t'
+    lever_j = np.einsum("kij,kj->ki", dR, np.broadcast_to(lever_b, p_j.shape))  # in j's body frame
+    P = (p_j + v_j * tau + 0.5 * (gravity_n - 2.0 * np.cross(omega_ie_n, v_j)) * tau**2
+         + np.einsum("kij,kj->ki", R_j, dp) + np.einsum("kij,kj->ki", earth_R_j, lever_j))
+    dP_theta = -R_j @ skew(dp) - earth_R_j @ skew(lever_j)
+    dP_v = np.eye(3)[None] * tau[:, :, None] - skew(omega_ie_n)[None] * (tau**2)[:, :, None]
+    return P, earth_R_j @ dR, dP_theta, dP_v

@@ -29,7 +29,7 @@ from . import noise_components as nc
 from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
 from .normal_solve import tree_factor
-from .preintegration import preintegrate
+from .preintegration import body_deltas, preintegrate
 from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
 from ..forked import usable_cpus
@@ -421,33 +421,37 @@ class _Builder:
     def prisms(self, used: np.ndarray, values: gtsam.Values) -> Callable[["_State"], fx.LinearBlocks]:
         """Factors of the used prism readings (indices into ``problem.prisms``) and one correction
         state ``T(j)`` per station (inserted into ``values`` when missing) with its prior from the
-        instrument specification. Each reading is tied to its nearest keyframe and moved along
-        the prism's velocity (fusion/factors.py ``prism_residual``). Returns the factors' builder."""
+        instrument specification. Each reading is tied to the keyframe at or before it and reached
+        from there with the IMU samples in between (fusion/factors.py ``prism_residual``).
+        Returns the factors' builder."""
         pr, st, imu = self.pb.prisms, self.pb.factors.total_stations, self.pb.imu
         for j in range(len(pr.station_ids)):
             if not values.exists(T(j)):
                 values.insert(T(j), np.zeros(fx.STATION_STATE_DIM))
             self.g.add(gtsam.PriorFactorVector(T(j), np.zeros(fx.STATION_STATE_DIM),
                                                gtsam.noiseModel.Diagonal.Sigmas(pr.prior_sigma[j])))
-        kk = nearest_sample(self.t, pr.t_s[used])
-        dt = pr.t_s[used] - self.t[kk]
+        t_read = pr.t_s[used]
+        # the keyframe at or before each reading; the IMU samples up to the reading (fusion/factors.py)
+        kk = np.clip(np.searchsorted(self.t, t_read, side="right") - 1, 0, self.t.size - 1)
+        tau = t_read - self.t[kk]
         sid = pr.station[used]
-        y, t_imu = pr.pos_n[used], pr.t_s[used]
-        from_station = y - pr.station_pos_n[sid]
+        y = pr.pos_n[used]
         W = np.linalg.inv(np.linalg.cholesky(pr.cov_n[used]))
-        idx = self.idx[kk]
-        w_ib_b = 0.5 * (imu.gyro_radps[idx] + imu.gyro_radps[np.minimum(idx + 1, imu.t_s.size - 1)])
-        omega_ie_n = geodesy.earth_rate_n(self.pb.origin)
+        dR, dv, dp = body_deltas(imu, self.idx[kk], tau)
+        holds = np.clip(np.searchsorted(imu.t_s, t_read), 0, imu.t_s.size - 1)  # the sample whose interval holds it
+        omega_ie_n = geodesy.earth_rate_n(self.pb.origin) if self.pb.factors.imu.earth_rate else np.zeros(3)
         keys = [X(0) + kk, V(0) + kk, T(0) + sid]
         ones = np.ones((used.size, 3))
-        lever = pr.lever_arm_b
         group = kk * len(pr.station_ids) + sid  # readings sharing their keys: one factor
-        obs = fx.PrismObservations(lever, dt, t_imu, y, from_station)
+        g_n = geodesy.gravity_n(self.pos0[kk], self.pb.origin)
+        # a reading outside the IMU's span has no samples to reach it: the first-order step from the
+        # end keyframe's velocity (without gravity, which the missing samples would have cancelled)
+        g_n[(t_read < self.t[0]) | (t_read > self.t[-1])] = 0.0
+        obs = fx.PrismObservations(pr.lever_arm_b, tau, t_read, y, y - pr.station_pos_n[sid], dR, dv, dp,
+                                   imu.gyro_radps[holds], g_n, omega_ie_n)
 
         def build(state: _State) -> fx.LinearBlocks:
-            R = state.R[kk]
-            w_nb_b = w_ib_b - np.einsum("kji,j->ki", R, omega_ie_n)
-            r, J = fx.prism_residual(R, state.p[kk], state.v[kk], w_nb_b, state.ts[sid], obs)
+            r, J = fx.prism_residual(state.R[kk], state.p[kk], state.v[kk], state.ts[sid], obs)
             return fx.LinearBlocks(keys, J, r, ones, st.huber_k, W, group)
 
         self.builders.append(("prism", build))

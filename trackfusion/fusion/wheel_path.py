@@ -25,7 +25,9 @@ wheelbase (scale error, tick quantum, slips) moves the rear point along the rail
 
 ``t'`` falls between keyframes ``j`` and ``j + 1``; the rear contact there is reached from
 keyframe ``j`` by integrating the IMU samples over ``tau = t' - t_j`` (< one keyframe spacing)
-in ``j``'s body frame (:func:`body_deltas`, the preintegration's mechanisation)::
+in ``j``'s body frame (:func:`~.preintegration.body_deltas` and
+:func:`~.preintegration.point_after`: the preintegration's mechanisation, shared with the
+prism factor)::
 
     p(t')  = p_j + v_j tau + (g - 2 omega_ie x v_j) tau^2 / 2 + R_j dp
     R(t')  = Exp(-omega_ie tau) R_j dR
@@ -46,9 +48,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..rotations import skew, so3_exp
-from ..sensors.types import ImuData
-from .preintegration import sculling_compensated
+from ..rotations import skew
+from .preintegration import body_deltas, point_after
 
 _P_YZ = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 
@@ -103,29 +104,6 @@ def rear_times(t_key: np.ndarray, odo_t_s: np.ndarray, odo_d_m: np.ndarray, whee
     return WheelPairs(k[keep].astype(np.int64), j[keep], (t_rear - t_key[j])[keep])
 
 
-def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation ``dR`` (M,3,3) and position ``dp`` (M,3) [m] integrated in the body frame of
-    the IMU sample ``start_idx`` (M,) over ``tau_s`` (M,) [s] (the samples after it, the last one
-    for the part of its interval up to ``tau``; a sample is the mean over the interval that
-    ends at it), without gravity, bias and Earth rate: the preintegration's ``deltaRij`` and
-    ``deltaPij`` over a fraction of an interval."""
-    dt, f = sculling_compensated(imu)
-    n = imu.t_s.size
-    M = start_idx.size
-    dR = np.broadcast_to(np.eye(3), (M, 3, 3)).copy()
-    dv, dp = np.zeros((M, 3)), np.zeros((M, 3))
-    t_end = imu.t_s[start_idx] + tau_s
-    last = np.minimum(np.searchsorted(imu.t_s, t_end), n - 1)  # the sample whose interval holds t_end
-    for offset in range(1, int(np.max(last - start_idx, initial=0)) + 1):
-        s = np.minimum(start_idx + offset, n - 1)
-        h = np.clip(t_end - imu.t_s[s - 1], 0.0, dt[s])
-        a = np.einsum("kij,kj->ki", dR, f[s])
-        dp += dv * h[:, None] + 0.5 * a * h[:, None] ** 2
-        dv += a * h[:, None]
-        dR = dR @ so3_exp(imu.gyro_radps[s] * h[:, None])
-    return dR, dp
-
-
 #: the builder name of the pairs whose front wheel point a previous chunk holds (fusion/chunks.py)
 HAND_OVER_BUILDER = "wheel_path_hand_over"
 
@@ -142,7 +120,7 @@ class WheelFront(NamedTuple):
 class WheelPathData(NamedTuple):
     """What the wheel-path factors of M pairs hold fixed while the states change (built once):
     tau_s (M,) [s] the rear time after keyframe j; dR (M,3,3), dp (M,3) [m] from
-    :func:`body_deltas`; gravity_n (M,3) [m/s^2] at keyframe j; omega_ie_n (3,) [rad/s]; front_b,
+    :func:`~.preintegration.body_deltas`; gravity_n (M,3) [m/s^2] at keyframe j; omega_ie_n (3,) [rad/s]; front_b,
     rear_b (3,) [m] IMU to the front / rear reference-rail wheel contact in ``b``; R_vb (3,3)."""
 
     tau_s: np.ndarray
@@ -164,21 +142,13 @@ def wheel_path_residual(R_k: np.ndarray, p_k: np.ndarray, R_j: np.ndarray, p_j: 
     :class:`WheelPathData`.
     Returns r (M,2) [m] and Jacobians [d/pose_k (M,2,6), d/pose_j (M,2,6), d/v_j (M,2,3)].
     """
-    dR, dp, gravity_n, omega_ie_n, rear_b = data.dR, data.dp, data.gravity_n, data.omega_ie_n, data.rear_b
-    tau = data.tau_s[:, None]
-    earth = so3_exp(-omega_ie_n[None, :] * tau)
-    lever_rear = np.einsum("kij,j->ki", dR, rear_b)  # dR rear_b, in j's body frame
-    R_rear = earth @ R_j  # maps j's body frame to n at t'
-    P_rear = (p_j + v_j * tau + 0.5 * (gravity_n - 2.0 * np.cross(omega_ie_n, v_j)) * tau**2
-              + np.einsum("kij,kj->ki", R_j, dp) + np.einsum("kij,kj->ki", R_rear, lever_rear))
+    P_rear, _, dP_theta_j, dP_v_j = point_after(R_j, p_j, v_j, data.tau_s, data.dR, data.dp, data.gravity_n,
+                                                data.omega_ie_n, data.rear_b)
     y = np.einsum("kji,kj->ki", R_k, p_k - P_rear)  # R_k^T (p_k - P_rear)
     M = _P_YZ @ data.R_vb  # (2,3)
     r = (y + data.front_b) @ M.T
     Rk_T = np.swapaxes(R_k, 1, 2)
     d_pose_k = np.concatenate([M @ skew(y), np.broadcast_to(M, (y.shape[0], 2, 3))], axis=2)
-    # dP_rear / d(theta_j) = -R_j [dp]x - earth R_j [dR rear_b]x ; / d(p_j) = R_j ; / d(v_j)
-    dP_theta_j = -R_j @ skew(dp) - R_rear @ skew(lever_rear)
-    dP_v_j = np.eye(3)[None] * tau[:, :, None] - skew(omega_ie_n)[None] * (tau**2)[:, :, None]
     A = -M @ Rk_T  # (M,2,3): d r / d P_rear
     d_pose_j = np.concatenate([A @ dP_theta_j, A @ R_j], axis=2)
     return r, [d_pose_k, d_pose_j, A @ dP_v_j]
@@ -206,7 +176,7 @@ def wheel_path_builder(problem, t_key: np.ndarray, key_idx: np.ndarray, pos0_n: 
     pairs = rear_times(np.r_[held.t_s, t_key], problem.odometer.t_s, problem.odometer.distance_m, tr.wheelbase_m)
     keep = ((pairs.k - H) % st.keyframe_step == 0) & (pairs.j >= H)  # the rear wheel in this problem's time
     k, j, tau_s = pairs.k[keep] - H, pairs.j[keep] - H, pairs.tau_s[keep]
-    dR, dp = body_deltas(problem.imu, key_idx[j], tau_s)
+    dR, _, dp = body_deltas(problem.imu, key_idx[j], tau_s)
     g_n = geodesy.gravity_n(pos0_n[j], problem.origin)
     half = 0.5 * tr.wheelbase_m
     front_b, rear_b = tr.lever_arm_b(np.array([half, 0.0, 0.0])), tr.lever_arm_b(np.array([-half, 0.0, 0.0]))
