@@ -128,3 +128,16 @@ def test_init_refuses_to_overwrite(survey, capsys):
     assert code == 2 and "--force" in cap.err and out.read_text() == "mine\n"
     code, cap = _init(capsys, d / "log.mcap", "--out", out, "--force")
     assert code == 0 and load_pipeline(out).config.vehicle.kind == "trolley"
+
+
+def test_init_trolley_with_total_stations_gets_the_wheel_path(tmp_path, capsys):
+    """A trolley log with an odometer and prism readings (no GNSS): the wheel path on 0.2 s
+    keyframes, as measured on the bridge (benchmarks/bridge_keyframes.py); the stations wait
+    for their set-ups."""
+    from test_total_station_run import SHORT as SHORT_BRIDGE
+    simulate_to_dir("bridge-total-station", tmp_path, seed=2, overrides=SHORT_BRIDGE[:4])
+    code, cap = _init(capsys, tmp_path / "log.mcap", "--out", tmp_path / "init.yaml")
+    assert code == 0, cap.err
+    cfg = load_pipeline(tmp_path / "init.yaml").config
+    assert cfg.factors.wheel_path.enabled and cfg.keyframes.spacing_s == 0.2
+    assert not cfg.factors.gnss.enabled and not cfg.factors.total_stations.enabled

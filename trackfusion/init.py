@@ -197,10 +197,11 @@ def _sensors_and_factors(d: _Draft, log, kind: str, topics: dict, grade: str | N
               "clock_offset_s: its clock minus the IMU's")
     d.put("factors.odometer", "odometer" in has)
     # the wheel path needs the exact wheelbase: not on a placeholder
-    wheel_path = kind == "trolley" and {"odometer", "gnss"} <= has and "vehicle.wheelbase_m" not in d.fill_in
+    aided = bool({"gnss", "total_stations"} & has)  # measured with either (docs/wheel_path.md)
+    wheel_path = kind == "trolley" and "odometer" in has and aided and "vehicle.wheelbase_m" not in d.fill_in
     d.put("factors.wheel_path", {"enabled": True, "keyframe_step": 1} if wheel_path else False,
           "the rear wheel runs where the front one ran (docs/wheel_path.md)" if wheel_path
-          else "the wheel path: a trolley's, with an odometer and GNSS (docs/wheel_path.md)")
+          else "the wheel path: a trolley's, with an odometer and GNSS or total stations (docs/wheel_path.md)")
     if "gnss" in has:
         g = log.gnss
         if "gnss_antenna_b_m" in arms:

@@ -372,12 +372,12 @@ def pipeline_for(sim: Simulation) -> dict[str, Any]:
     only: the scenario's IMU section (grade and stated figures), the library's NHC, odometer and
     wheel-path sigmas (a trolley's documented tolerances; each group's noise is estimated from the
     residuals, fusion/noise_components.py), nothing derived from the simulated track or the drawn
-    errors. The wheel-path factor is on in the GNSS + odometer surveys (not yet measured with
-    total stations or without GNSS: docs/wheel_path.md)."""
+    errors. The wheel-path factor (and with it 0.2 s keyframes) is on in the surveys with an
+    odometer and GNSS or total stations (not yet measured without either: docs/wheel_path.md)."""
     cfg = sim.config
     imu_spec = _imu_spec(cfg.imu)
     # the rigid trolley's rear wheel runs where its front wheel ran (fusion/wheel_path.py)
-    wheel_path = cfg.odometer is not None and cfg.gnss is not None and cfg.total_stations is None
+    wheel_path = cfg.odometer is not None and (cfg.gnss is not None or cfg.total_stations is not None)
     factors = {"imu": True, "zupt": True,
                "nhc": True,
                "odometer": cfg.odometer is not None,
