@@ -264,8 +264,7 @@ def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, stati
     """
     lever, tau, t_imu, from_station_n = obs.lever_arm_b, obs.tau_s, obs.t_imu_s, obs.from_station_n
     q = station_state
-    P, R_t, dP_theta, dP_v = point_after(R_nb, pos_n, vel_n, tau, obs.dR, obs.dp, obs.gravity_n,
-                                         obs.omega_ie_n, lever)
+    P, R_t, dP_theta, dP_v = point_after(R_nb, pos_n, vel_n, obs, lever)
     coriolis = obs.gravity_n - 2.0 * np.cross(obs.omega_ie_n, vel_n)
     v_t = vel_n + coriolis * tau[:, None] + np.einsum("kij,kj->ki", R_nb, obs.dv)
     # the prism's velocity at the reading: v + R (w_nb x lever), w_nb = w_ib - R^T omega_ie

@@ -27,6 +27,7 @@ velocity error at 0.01 rad/s; see tests/test_fusion_ideal.py).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import gtsam
 import numpy as np
@@ -176,20 +177,31 @@ def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple
     return dR, dv, dp
 
 
-def point_after(R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray, tau_s: np.ndarray, dR: np.ndarray,
-                dp: np.ndarray, gravity_n: np.ndarray, omega_ie_n: np.ndarray, lever_b: np.ndarray
+class ImuSpan(Protocol):
+    """What :func:`point_after` reads of M spans from a keyframe ``j`` (fusion/wheel_path.py
+    ``WheelPathData``, fusion/factors.py ``PrismObservations``): tau_s (M,) [s] after ``t_j``;
+    dR (M,3,3), dp (M,3) [m] of :func:`body_deltas`; gravity_n (M,3) [m/s^2] at the keyframe;
+    omega_ie_n (3,) [rad/s]."""
+
+    tau_s: np.ndarray
+    dR: np.ndarray
+    dp: np.ndarray
+    gravity_n: np.ndarray
+    omega_ie_n: np.ndarray
+
+
+def point_after(R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray, span: ImuSpan, lever_b: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The point ``lever_b`` (body frame) at ``t' = t_j + tau`` reached from keyframe ``j`` with
-    the IMU's :func:`body_deltas` ``dR``, ``dp`` (the preintegration's mechanisation)::
+    the IMU's :func:`body_deltas` ``dR``, ``dp`` (``span``; the preintegration's mechanisation)::
 
         p(t') = p_j + v_j tau + (g - 2 omega_ie x v_j) tau^2 / 2 + R_j dp
         R(t') = Exp(-omega_ie tau) R_j dR,     P = p(t') + R(t') lever_b
 
-    R_j (M,3,3) ``R_nb``; p_j, v_j (M,3) [m, m/s]; tau_s (M,) [s]; gravity_n (M,3) [m/s^2];
-    omega_ie_n (3,) [rad/s]; lever_b (3,) or (M,3) [m]. Returns P (M,3) [m], R(t') (M,3,3) and
+    R_j (M,3,3) ``R_nb``; p_j, v_j (M,3) [m, m/s]; lever_b (3,) [m]. Returns P (M,3) [m], R(t') (M,3,3) and
     the Jacobians of P on keyframe j's attitude (right perturbation, (M,3,3)) and velocity
     (M,3,3); on its position it is ``R_j`` (GTSAM's pose retraction)."""
-    tau = tau_s[:, None]
+    tau, dR, dp, gravity_n, omega_ie_n = span.tau_s[:, None], span.dR, span.dp, span.gravity_n, span.omega_ie_n
     earth_R_j = so3_exp(-omega_ie_n[None, :] * tau) @ R_j  # j's body frame to n at t'
     lever_j = np.einsum("kij,kj->ki", dR, np.broadcast_to(lever_b, p_j.shape))  # in j's body frame
     P = (p_j + v_j * tau + 0.5 * (gravity_n - 2.0 * np.cross(omega_ie_n, v_j)) * tau**2

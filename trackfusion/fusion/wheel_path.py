@@ -142,8 +142,7 @@ def wheel_path_residual(R_k: np.ndarray, p_k: np.ndarray, R_j: np.ndarray, p_j: 
     :class:`WheelPathData`.
     Returns r (M,2) [m] and Jacobians [d/pose_k (M,2,6), d/pose_j (M,2,6), d/v_j (M,2,3)].
     """
-    P_rear, _, dP_theta_j, dP_v_j = point_after(R_j, p_j, v_j, data.tau_s, data.dR, data.dp, data.gravity_n,
-                                                data.omega_ie_n, data.rear_b)
+    P_rear, _, dP_theta_j, dP_v_j = point_after(R_j, p_j, v_j, data, data.rear_b)
     y = np.einsum("kji,kj->ki", R_k, p_k - P_rear)  # R_k^T (p_k - P_rear)
     M = _P_YZ @ data.R_vb  # (2,3)
     r = (y + data.front_b) @ M.T
