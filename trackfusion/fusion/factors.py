@@ -244,6 +244,10 @@ class PrismObservations(NamedTuple):
     omega_ie_n: np.ndarray
 
 
+#: the fields of :class:`PrismObservations` with one row per reading
+PRISM_PER_READING = ("tau_s", "t_imu_s", "prism_n", "from_station_n", "dR", "dv", "dp", "omega_ib_b", "gravity_n")
+
+
 def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, station_state: np.ndarray,
                    obs: PrismObservations) -> tuple[np.ndarray, list[np.ndarray]]:
     """Predicted minus (station-corrected) measured prism position, K readings at once.

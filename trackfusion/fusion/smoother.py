@@ -288,6 +288,8 @@ class _Builder:
         self.counts: dict[str, int] = {}
         self.join: HandOver | None = None
         self.soft = _SoftJoin()
+        self._prism_span: fx.PrismObservations | None = None  # every reading's (:meth:`_prism_observations`)
+        self._prism_keyframe = np.zeros(0, np.int64)
 
     def _count(self, name: str, n: int) -> None:
         self.counts[name] = self.counts.get(name, 0) + int(n)
@@ -424,31 +426,19 @@ class _Builder:
         instrument specification. Each reading is tied to the keyframe at or before it and reached
         from there with the IMU samples in between (fusion/factors.py ``prism_residual``).
         Returns the factors' builder."""
-        pr, st, imu = self.pb.prisms, self.pb.factors.total_stations, self.pb.imu
+        pr, st = self.pb.prisms, self.pb.factors.total_stations
         for j in range(len(pr.station_ids)):
             if not values.exists(T(j)):
                 values.insert(T(j), np.zeros(fx.STATION_STATE_DIM))
             self.g.add(gtsam.PriorFactorVector(T(j), np.zeros(fx.STATION_STATE_DIM),
                                                gtsam.noiseModel.Diagonal.Sigmas(pr.prior_sigma[j])))
-        t_read = pr.t_s[used]
-        # the keyframe at or before each reading; the IMU samples up to the reading (fusion/factors.py)
-        kk = np.clip(np.searchsorted(self.t, t_read, side="right") - 1, 0, self.t.size - 1)
-        tau = t_read - self.t[kk]
-        sid = pr.station[used]
-        y = pr.pos_n[used]
+        obs = self._prism_observations()
+        obs = obs._replace(**{name: getattr(obs, name)[used] for name in fx.PRISM_PER_READING})
+        kk, sid = self._prism_keyframe[used], pr.station[used]
         W = np.linalg.inv(np.linalg.cholesky(pr.cov_n[used]))
-        dR, dv, dp = body_deltas(imu, self.idx[kk], tau)
-        holds = np.clip(np.searchsorted(imu.t_s, t_read), 0, imu.t_s.size - 1)  # the sample whose interval holds it
-        omega_ie_n = geodesy.earth_rate_n(self.pb.origin) if self.pb.factors.imu.earth_rate else np.zeros(3)
         keys = [X(0) + kk, V(0) + kk, T(0) + sid]
         ones = np.ones((used.size, 3))
         group = kk * len(pr.station_ids) + sid  # readings sharing their keys: one factor
-        g_n = geodesy.gravity_n(self.pos0[kk], self.pb.origin)
-        # a reading outside the IMU's span has no samples to reach it: the first-order step from the
-        # end keyframe's velocity (without gravity, which the missing samples would have cancelled)
-        g_n[(t_read < self.t[0]) | (t_read > self.t[-1])] = 0.0
-        obs = fx.PrismObservations(pr.lever_arm_b, tau, t_read, y, y - pr.station_pos_n[sid], dR, dv, dp,
-                                   imu.gyro_radps[holds], g_n, omega_ie_n)
 
         def build(state: _State) -> fx.LinearBlocks:
             r, J = fx.prism_residual(state.R[kk], state.p[kk], state.v[kk], state.ts[sid], obs)
@@ -458,6 +448,29 @@ class _Builder:
         self._count("prism", used.size)
         self._count("station_prior", len(pr.station_ids))
         return build
+
+    def _prism_observations(self) -> fx.PrismObservations:
+        """Every prism reading as the prism factor sees it, made once per run (the gating rounds
+        take their used readings' rows): tied to the keyframe at or before it, with the IMU
+        samples up to the reading (fusion/factors.py ``prism_residual``)."""
+        if self._prism_span is not None:
+            return self._prism_span
+        pr, imu = self.pb.prisms, self.pb.imu
+        t_read = pr.t_s
+        kk = np.clip(np.searchsorted(self.t, t_read, side="right") - 1, 0, self.t.size - 1)
+        tau = t_read - self.t[kk]
+        dR, dv, dp = body_deltas(imu, self.idx[kk], tau)
+        holds = np.clip(np.searchsorted(imu.t_s, t_read), 0, imu.t_s.size - 1)  # the sample whose interval holds it
+        omega_ie_n = geodesy.earth_rate_n(self.pb.origin) if self.pb.factors.imu.earth_rate else np.zeros(3)
+        g_n = geodesy.gravity_n(self.pos0[kk], self.pb.origin)
+        # a reading outside the IMU's span has no samples to reach it: the first-order step from the
+        # end keyframe's velocity (without gravity, which the missing samples would have cancelled)
+        g_n[(t_read < self.t[0]) | (t_read > self.t[-1])] = 0.0
+        self._prism_keyframe = kk
+        from_station_n = pr.pos_n - pr.station_pos_n[pr.station]
+        self._prism_span = fx.PrismObservations(pr.lever_arm_b, tau, t_read, pr.pos_n, from_station_n, dR, dv, dp,
+                                                imu.gyro_radps[holds], g_n, omega_ie_n)
+        return self._prism_span
 
     def _gnss_error_prior(self, first: int, values: gtsam.Values, corr: np.ndarray, tau_s: float) -> None:
         """Prior of the first used fix's error: the Gauss-Markov process's, or in a later chunk its
