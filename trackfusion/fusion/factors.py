@@ -268,11 +268,10 @@ def prism_residual(R_nb: np.ndarray, pos_n: np.ndarray, vel_n: np.ndarray, stati
     """
     lever, tau, t_imu, from_station_n = obs.lever_arm_b, obs.tau_s, obs.t_imu_s, obs.from_station_n
     q = station_state
-    P, R_t, dP_theta, dP_v = point_after(R_nb, pos_n, vel_n, obs, lever)
+    P, earth_R_j, dP_theta, dP_v = point_after(R_nb, pos_n, vel_n, obs, lever)
     coriolis = obs.gravity_n - 2.0 * np.cross(obs.omega_ie_n, vel_n)
     v_t = vel_n + coriolis * tau[:, None] + np.einsum("kij,kj->ki", R_nb, obs.dv)
     # the prism's velocity at the reading: v + R (w_nb x lever), w_nb = w_ib - R^T omega_ie
-    earth_R_j = R_t @ np.swapaxes(obs.dR, 1, 2)
     w_x_l_j = np.einsum("kij,kj->ki", obs.dR, np.cross(obs.omega_ib_b, lever))  # in j's body frame
     lever_j = np.einsum("kij,j->ki", obs.dR, lever)
     R_lever = np.einsum("kij,kj->ki", earth_R_j, lever_j)

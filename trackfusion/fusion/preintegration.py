@@ -198,7 +198,8 @@ def point_after(R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray, span: ImuSpan
         p(t') = p_j + v_j tau + (g - 2 omega_ie x v_j) tau^2 / 2 + R_j dp
         R(t') = Exp(-omega_ie tau) R_j dR,     P = p(t') + R(t') lever_b
 
-    R_j (M,3,3) ``R_nb``; p_j, v_j (M,3) [m, m/s]; lever_b (3,) [m]. Returns P (M,3) [m], R(t') (M,3,3) and
+    R_j (M,3,3) ``R_nb``; p_j, v_j (M,3) [m, m/s]; lever_b (3,) [m]. Returns P (M,3) [m],
+    ``Exp(-omega_ie tau) R_j`` (M,3,3) (j's body frame to ``n`` at ``t'``: ``R(t')`` is it times ``dR``) and
     the Jacobians of P on keyframe j's attitude (right perturbation, (M,3,3)) and velocity
     (M,3,3); on its position it is ``R_j`` (GTSAM's pose retraction)."""
     tau, dR, dp, gravity_n, omega_ie_n = span.tau_s[:, None], span.dR, span.dp, span.gravity_n, span.omega_ie_n
@@ -208,4 +209,4 @@ def point_after(R_j: np.ndarray, p_j: np.ndarray, v_j: np.ndarray, span: ImuSpan
          + np.einsum("kij,kj->ki", R_j, dp) + np.einsum("kij,kj->ki", earth_R_j, lever_j))
     dP_theta = -R_j @ skew(dp) - earth_R_j @ skew(lever_j)
     dP_v = np.eye(3)[None] * tau[:, :, None] - skew(omega_ie_n)[None] * (tau**2)[:, :, None]
-    return P, earth_R_j @ dR, dP_theta, dP_v
+    return P, earth_R_j, dP_theta, dP_v
