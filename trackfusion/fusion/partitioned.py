@@ -319,13 +319,34 @@ def marginal_covariance(tree, key: int) -> np.ndarray:
         return R_inv @ R_inv.T
 
 
+def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -> np.ndarray:
+    """Joint marginal covariance (sum of dims, square) of ``keys`` (in that order) by QR: every
+    other variable eliminated first (COLAMD), the marginal Bayes net ``R x = d`` of the keys
+    inverted. Unlike the Bayes tree's per-key marginals (Cholesky of shortcuts), this stays
+    valid for the velocities of the stiff graphs here (those came out with zero or 1 m/s sigmas)."""
+    full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, keys)
+    others = gtsam.Ordering()
+    for i in range(full.size() - len(keys)):
+        others.push_back(full.at(i))
+    R, _ = gfg.marginalMultifrontalBayesNet(gtsam.Ordering(keys), others, gtsam.EliminateQR).matrix()
+    R_inv = np.linalg.inv(R)
+    return R_inv @ R_inv.T
+
+
 def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGraph, keys: list[int],
-                              workers: int) -> dict[int, np.ndarray]:
+                              workers: int, joint_keys: list[int] | None = None
+                              ) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` in linearised graph ``gfg``, computed in the parts of
     ``partition`` as :class:`PartMarginals` computes them (the same numbers), with the parts
     dealt to ``workers`` processes (trackfusion/parallel.py): each reduces its parts, every
     part's reduced factors go to every process, and each eliminates its parts' trees and answers
-    the keys that live in them. Only the reduced factors and the covariances cross processes."""
+    the keys that live in them. Only the reduced factors and the covariances cross processes.
+
+    Also returns the joint marginal covariance of ``joint_keys`` (in that order; the sum of their
+    dimensions, square) when they are all separator keys (e.g. total-station set-ups seen in
+    several parts), else None: the reduced factors of all the parts together are the exact
+    marginal information of the separator, so this is :func:`joint_marginal_covariance` of that
+    small graph (no Bayes tree of the whole run is walked)."""
     layout = partition.layout(gfg)
     by_part: dict[int, list[int]] = {}
     for k in keys:
@@ -341,8 +362,11 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
         return [r for group in per_group for r in group]
 
-    _, _, done = run_step(groups_of(partition.count, workers), reduce, all_reduced, covariances)
-    return {k: v for group in done for k, v in group.items()}
+    packed, _, done = run_step(groups_of(partition.count, workers), reduce, all_reduced, covariances)
+    joint = None
+    if joint_keys and np.isin(np.asarray(joint_keys, np.uint64), layout.separator).all():
+        joint = joint_marginal_covariance(_union(_unpack(r) for r in packed), list(joint_keys))
+    return {k: v for group in done for k, v in group.items()}, joint
 
 
 def part_marginals(partition: Partition, gfg: gtsam.GaussianFactorGraph) -> "PartMarginals":

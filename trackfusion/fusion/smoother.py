@@ -819,20 +819,6 @@ def _past_graph(gfg: gtsam.GaussianFactorGraph, k: int, kf: _Keyframes,
     return past
 
 
-def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -> np.ndarray:
-    """Joint marginal covariance (sum of dims, square) of ``keys`` (in that order) by QR: every
-    other variable eliminated first (COLAMD), the marginal Bayes net ``R x = d`` of the keys
-    inverted. Unlike the Bayes tree's per-key marginals (Cholesky of shortcuts), this stays
-    valid for the velocities of the stiff graphs here (those came out with zero or 1 m/s sigmas)."""
-    full = gtsam.Ordering.ColamdConstrainedLastGaussianFactorGraph(gfg, keys)
-    others = gtsam.Ordering()
-    for i in range(full.size() - len(keys)):
-        others.push_back(full.at(i))
-    R, _ = gfg.marginalMultifrontalBayesNet(gtsam.Ordering(keys), others, gtsam.EliminateQR).matrix()
-    R_inv = np.linalg.inv(R)
-    return R_inv @ R_inv.T
-
-
 def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, kf: _Keyframes, k: int, gnss,
                used: np.ndarray) -> HandOver:
     """The state at keyframe ``k`` and its marginal covariances (see :class:`HandOver`); ``gnss``
@@ -944,7 +930,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
         on_solved(kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
 
     tic = time.perf_counter()
-    (sig_t, sig_pos, sig_att), hand_over = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
+    (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
     if hand_over is not None and components is not None:
         hand_over = replace(hand_over, noise_applied={g: dict(c) for g, c in components.applied.items()})
     timings["marginals_s"] = time.perf_counter() - tic
@@ -953,7 +939,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           sig_t, sig_pos, sig_att, alignment, rounds.iterations, float(rounds.initial_cost),
                           float(sol.cost), dict(b.counts), sorted(gates.rejected, key=lambda r: r["t_s"]), timings,
                           station_states=None if gates.prisms is None else state.ts,
-                          station_cov=_station_covariance(gates.prisms, sol.tree),
+                          station_cov=station_cov,
                           rejected_prism=sorted(gates.rejected_prism, key=lambda r: (r["t_s"], r["station"])),
                           hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
 
@@ -1206,22 +1192,27 @@ def _components_json(components: "nc.NoiseComponents | None", fs, say: Callable[
 
 def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", partition: Partition | None,
                kf: _Keyframes, hand_over_t_s: float | None, gates: _Gates
-               ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], HandOver | None]:
-    """The sigmas of :func:`_marginal_sigmas` at the solve, and the :class:`HandOver` at the
-    keyframe nearest to ``hand_over_t_s`` (None: none)."""
+               ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], HandOver | None, np.ndarray | None]:
+    """The sigmas of :func:`_marginal_sigmas` at the solve, the :class:`HandOver` at the
+    keyframe nearest to ``hand_over_t_s`` (None: none), and the station corrections' joint
+    covariance (:func:`_station_covariance`; None: no total stations)."""
     sol = rounds.sol
     values = sol.values
     # the solve's last linearisation serves the marginals (at most one converged step before the
     # estimate); a later chunk's marginals need their own graph (:class:`_SoftJoin`)
     gfg = _marginal_graph(rounds.G, values, kf.with_scale, soft) if soft.keys or hand_over_t_s is not None else None
     sel = _sigma_keyframes(kf.t_s, problem.smoother.marginal_step_s)
-    covs = _sigma_covariances(problem, sol, gfg if soft.keys else None, partition, kf, [X(int(k)) for k in sel])
+    station_keys = [T(j) for j in range(len(gates.prisms.station_ids))] if gates.prisms is not None else None
+    covs, station_cov = _sigma_covariances(problem, sol, gfg if soft.keys else None, partition, kf,
+                                           [X(int(k)) for k in sel], station_keys)
+    if station_keys is not None and station_cov is None:
+        station_cov = _station_covariance(gates.prisms, sol.tree)
     sigmas = _marginal_sigmas(covs, sol.state, kf.t_s, sel)
     hand_over = None
     if hand_over_t_s is not None:
         k = int(nearest_sample(kf.t_s, np.array([hand_over_t_s]))[0])
         hand_over = _hand_over(gfg, values, kf, k, gates.gnss, gates.used)
-    return sigmas, hand_over
+    return sigmas, hand_over, station_cov
 
 
 def _noise_components(problem: FusionProblem, carried: dict[str, dict[str, float]] | None
@@ -1258,21 +1249,24 @@ def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Sol
 
 
 def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
-                       partition: Partition | None, kf: _Keyframes, keys: list[int]) -> dict[int, np.ndarray]:
+                       partition: Partition | None, kf: _Keyframes, keys: list[int],
+                       station_keys: list[int] | None = None) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` behind the sigma columns, exact on a run of any
     length: of ``gfg`` (a chunk's own marginal graph) or else of the solve's last linearisation,
     in parts of at most :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole
     hour's Bayes tree drifts), dealt to the CPUs this process may use (the same numbers on any
     count). The solve's own tree when it is that already: a run no longer than one such part,
-    or one solved in parts no longer."""
+    or one solved in parts no longer. Also the joint covariance of ``station_keys`` when the
+    parts give it (their separator's: :func:`~.partitioned.part_marginal_covariances`), else None."""
     parts = _partition(problem, kf, MARGINAL_PART_S)
     if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
         tree = sol.tree
     elif parts.count == 1:
         tree = _eliminate(gfg)
     else:
-        return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus())
-    return {k: marginal_covariance(tree, k) for k in keys}
+        return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus(),
+                                         station_keys)
+    return {k: marginal_covariance(tree, k) for k in keys}, None
 
 
 def _partition(problem: FusionProblem, kf: _Keyframes, part_s: float | None = None) -> Partition | None:
