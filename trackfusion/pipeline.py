@@ -36,7 +36,7 @@ from .fusion.trajectory import KeyframeStates
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .geometry_inputs import check_geometry_inputs, geometry_for_run
-from .forked import ForkedTasks, can_fork as can_fork_tasks
+from .forked import ForkedTasks, can_fork as can_fork_tasks, usable_cpus
 from .output_prefetch import OutputPrefetch
 from .registration.stations import SETUP_POSITION_SIGMA_MM, StationSetupConfig
 from .report.outputs import start_table_outputs
@@ -557,33 +557,26 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
     return out
 
 
-def _smooth_batch(problem: FusionProblem, say: Callable[[str], None],
-                  on_solved: Callable[..., None] | None = None,
-                  preintegrated: Preintegrated | None = None) -> SmootherResult:
-    """One batch by :func:`smooth` (``on_solved``, ``preintegrated``: see there)."""
-    return smooth(problem, say, on_solved=on_solved, preintegrated=preintegrated)
-
-
 def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
                         preintegrated: Preintegrated | None = None):
-    """One batch (:func:`_smooth_batch`) and its rows at the IMU rate: the densification starts
-    in forked children (one fewer than the workers: this process computes the marginals on a
-    core of its own meanwhile) as soon as the solve is done (fusion/densify_forked.py; the same
-    rows as one densify call). Returns (result, dense);
-    the result's ``timings_s["densify_wait_s"]``: the wall time waited for the rows after the marginals."""
+    """One batch by :func:`smooth` (``preintegrated``: see there) and its rows at the IMU rate,
+    densified once the smoother (with its marginals, which use every CPU) is done, in forked
+    children on the CPUs this process may use (fusion/densify_forked.py; the same rows as one
+    densify call). Returns (result, dense); the result's ``timings_s["densify_wait_s"]``: the
+    wall time of the densification.
+
+    After the marginals, not beside them: three processes on two cores cost more than they
+    overlapped (the 53 min bridge, back to back: marginals and densification 9.8 s in turn
+    against 10.7-11.1 s beside each other; docs/solver_speed.md)."""
     earth_rate_n = geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3)
-    started = []
+    res = smooth(problem, say, preintegrated=preintegrated)
+    tic = time.perf_counter()
+    keys = KeyframeStates(res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps, res.accel_bias_mps2,
+                          geodesy.gravity_n(res.pos_n, problem.origin))
     with ForkedTasks(always_fork=True) as children:
-        def on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias):
-            keys = KeyframeStates(key_idx, R_nb, pos_n, vel_n, gyro_bias, accel_bias,
-                                  geodesy.gravity_n(pos_n, problem.origin))
-            started.append(start_densify_forked(children, problem.imu, keys, earth_rate_n,
-                                                max(1, (cfg.smoother.workers or 1) - 1)))
-        res = _smooth_batch(problem, say, on_solved, preintegrated)
-        tic = time.perf_counter()
-        dense = started[-1].result()
-        res.timings_s["densify_wait_s"] = time.perf_counter() - tic
-        return res, dense
+        dense = start_densify_forked(children, problem.imu, keys, earth_rate_n, usable_cpus()).result()
+    res.timings_s["densify_wait_s"] = time.perf_counter() - tic
+    return res, dense
 
 
 def _decimation(imu_rate_hz: float, rate_hz: float) -> int:

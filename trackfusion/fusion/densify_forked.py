@@ -5,8 +5,8 @@
 as one :func:`~.trajectory.densify` call (tests/test_densify_forked.py). On the 54 min bridge
 this halves the 6-7 s of the densification; the rows (about 100 MB a part) come back through
 a pipe in a fraction of a second. :func:`start_densify_forked` starts the children and returns
-at once: the pipeline starts them as soon as the solve is done (``smooth(on_solved=)``), so they
-run while this process computes the marginal sigmas, which need one core only.
+at once (:meth:`Densifying.result` waits for them); the pipeline starts them once the smoother,
+marginals included, is done (pipeline._smooth_and_densify).
 """
 
 from __future__ import annotations

@@ -878,7 +878,7 @@ def preintegrate_problem(problem: FusionProblem) -> Preintegrated:
 
 
 def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None, join: HandOver | None = None,
-           hand_over_t_s: float | None = None, on_solved: Callable[..., None] | None = None,
+           hand_over_t_s: float | None = None,
            preintegrated: "Preintegrated | None" = None) -> SmootherResult:
     """Smooth a whole run (see module docstring). Raises :class:`FusionError` when the data
     cannot determine a trajectory.
@@ -886,9 +886,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     For overlapping chunks (fusion/chunks.py): ``join`` is the previous chunk's state at this
     chunk's first sample (replaces the alignment and the anchor); with ``hand_over_t_s`` the
     result carries the state at the keyframe nearest to that time (``SmootherResult.hand_over``).
-    ``on_solved(key_idx, R_nb, pos_n, vel_n, gyro_bias_radps, accel_bias_mps2)`` is called with the
-    result's arrays once the solve is done, before the marginals (the pipeline starts the
-    densification in forked children there, fusion/densify_forked.py). ``preintegrated``: this
+    ``preintegrated``: this
     problem's :func:`preintegrate_problem`, done beforehand (the pipeline does it while the total
     stations are prepared in a forked child); its ``wall_s`` counts in ``timings_s["preintegrate_s"]``.
     """
@@ -926,8 +924,6 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     state = sol.state  # the last solve's (a gate after it only erases GNSS error states: R, p, v, s, ts hold)
     biases = np.array([sol.values.atConstantBias(B(m)).vector()
                        for m in range(int(kf.bias_seg[-1]) + 1)])[kf.bias_seg]
-    if on_solved is not None:
-        on_solved(kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3])
 
     tic = time.perf_counter()
     (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
