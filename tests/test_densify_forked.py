@@ -1,5 +1,6 @@
-"""The densification of a one-batch run in forked workers (fusion/densify_forked.py) gives the
-same rows, bit for bit, as one densify() call (in two children, in one, or here); and the parts
+"""The densification of a one-batch run in parts (fusion/densify_forked.py: this process and
+forked children writing into shared rows) gives the same rows, bit for bit, as one densify()
+call; the rows come back private; a failed part is raised with every child reaped; the parts
 are cut at densify's blocks."""
 
 from __future__ import annotations
@@ -43,55 +44,83 @@ def keyframed():
 
 
 def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)  # 100 intervals: 2 parts of whole blocks
+    """Two and three parts (this process one of them, children the others, writing into shared
+    rows), and one call here where forking is not possible: the rows of one densify call."""
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)  # 100 intervals: parts of whole blocks
     monkeypatch.setattr(DF, "BLOCK", 20)
     assert DF.part_bounds(keyframed[1].key_idx.size - 1, 2) == [(0, 40), (40, 100)]
     whole = densify(*keyframed, block=20)
-    for forked, workers, children in ((True, 2, 2), (True, 1, 1), (False, 2, 0)):  # forked parts, or one call here
+    forks = []
+    real_submit = ForkedTasks.submit
+    monkeypatch.setattr(ForkedTasks, "submit", lambda self, *a, **k: forks.append(1) or real_submit(self, *a, **k))
+    for forked, workers, children in ((True, 2, 1), (True, 3, 2), (True, 1, 0), (False, 2, 0)):
         monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
-        with ForkedTasks(always_fork=True) as tasks:
-            parts = DF.start_densify_forked(tasks, *keyframed, workers=workers).result()
-            assert len(tasks.tasks) == children
+        forks.clear()
+        dense = DF.densify_forked(*keyframed, workers=workers)
+        assert len(forks) == children
         for name in ("t_s", "R_nb", "pos_n", "vel_n"):
-            np.testing.assert_array_equal(getattr(parts, name), getattr(whole, name))
+            got = getattr(dense, name)
+            np.testing.assert_array_equal(got, getattr(whole, name))
+            assert got.flags.owndata
 
 
-def test_started_densification_uses_the_states_at_its_start(keyframed, monkeypatch):
-    """start_densify_forked returns while its children work: this process may go on (here it
-    overwrites the states it handed over) and result() still gives the rows of the states at
-    the start, bit for bit."""
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)
+def test_the_rows_are_private_once_returned(keyframed, monkeypatch):
+    """The children wrote into shared memory; the returned rows are this process's own copy: a
+    later forked child writing into them changes nothing here."""
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
     monkeypatch.setattr(DF, "BLOCK", 20)
     monkeypatch.setattr(DF, "can_fork", lambda n: True)
-    whole = densify(*keyframed, block=20)
-    imu, shared, omega_ie_n = keyframed
-    keys = KeyframeStates(*(a.copy() for a in vars(shared).values()))
+    dense = DF.densify_forked(*keyframed, workers=2)
+    before = dense.pos_n.copy()
+
+    def scribble():
+        dense.pos_n[:] = 0.0
     with ForkedTasks(always_fork=True) as tasks:
-        job = DF.start_densify_forked(tasks, imu, keys, omega_ie_n, workers=2)
-        assert len(tasks.tasks) == 2 and all(t.pid is not None for t in tasks.tasks)  # two children at work
-        keys.R_nb[:] = np.eye(3)  # R_nb, and pos_n, overwritten after the start
-        keys.pos_n[:] = 0.0
-        dense = job.result()
-    for name in ("t_s", "R_nb", "pos_n", "vel_n"):
-        np.testing.assert_array_equal(getattr(dense, name), getattr(whole, name))
+        tasks.submit("scribbling", scribble)
+        tasks.wait()
+    np.testing.assert_array_equal(dense.pos_n, before)
 
 
 def test_a_failed_part_is_raised_and_the_other_child_reaped(keyframed, monkeypatch):
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 40)
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
     monkeypatch.setattr(DF, "BLOCK", 20)
     monkeypatch.setattr(DF, "can_fork", lambda n: True)
-    real_part = DF._part
-
-    def part(i):
-        if i == 0:
-            raise ValueError("part 0 failed")
-        return real_part(i)
-
-    monkeypatch.setattr(DF, "_part", part)
+    real_part = DF._part_into
     children = []
+    real_submit = ForkedTasks.submit
+
+    def submit(self, *a, **k):
+        task = real_submit(self, *a, **k)
+        children.append(task)
+        return task
+    monkeypatch.setattr(ForkedTasks, "submit", submit)
+    for failing in (1, 2):  # a child's part, or the last one
+        def part(out, imu, keys, omega_ie_n, bounds):
+            if bounds[0] == DF.part_bounds(keys.key_idx.size - 1, 3)[failing][0]:
+                raise ValueError(f"part {failing} failed")
+            return real_part(out, imu, keys, omega_ie_n, bounds)
+        monkeypatch.setattr(DF, "_part_into", part)
+        children.clear()
+        with pytest.raises(ValueError, match=f"part {failing} failed"):
+            DF.densify_forked(*keyframed, workers=3)
+        assert len(children) == 2 and all(c.pid is None for c in children)  # both waited for or killed
+
+
+def test_a_failure_here_kills_the_children(keyframed, monkeypatch):
+    """This process's own part fails: the children are killed and reaped, the error raised."""
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
+    monkeypatch.setattr(DF, "BLOCK", 20)
+    monkeypatch.setattr(DF, "can_fork", lambda n: True)
+    real_part = DF._part_into
+    children = []
+    real_submit = ForkedTasks.submit
+    monkeypatch.setattr(ForkedTasks, "submit", lambda self, *a, **k: children.append(real_submit(self, *a, **k)) or children[-1])
+
+    def part(out, imu, keys, omega_ie_n, bounds):
+        if bounds[0] == 0:
+            raise ValueError("part 0 failed")
+        return real_part(out, imu, keys, omega_ie_n, bounds)
+    monkeypatch.setattr(DF, "_part_into", part)
     with pytest.raises(ValueError, match="part 0 failed"):
-        with ForkedTasks(always_fork=True) as tasks:
-            job = DF.start_densify_forked(tasks, *keyframed, workers=2)
-            children += tasks.tasks
-            job.result()
-    assert len(children) == 2 and all(c.pid is None for c in children)  # both children waited for or killed
+        DF.densify_forked(*keyframed, workers=2)
+    assert len(children) == 1 and children[0].pid is None

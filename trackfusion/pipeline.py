@@ -31,7 +31,7 @@ from .fusion.imu_noise import estimate_imu_noise
 from .fusion.preintegration import ImuNoise
 from .fusion.problem import FusionProblem, GnssFixes, TrolleyFrame  # noqa: F401 (TrolleyFrame: trackfusion.pipeline's)
 from .fusion.settings import FactorSettings, KeyframeSettings, SmootherSettings, StaticSettings
-from .fusion.densify_forked import start_densify_forked
+from .fusion.densify_forked import densify_forked
 from .fusion.trajectory import KeyframeStates
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
@@ -573,8 +573,7 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
     tic = time.perf_counter()
     keys = KeyframeStates(res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps, res.accel_bias_mps2,
                           geodesy.gravity_n(res.pos_n, problem.origin))
-    with ForkedTasks(always_fork=True) as children:
-        dense = start_densify_forked(children, problem.imu, keys, earth_rate_n, usable_cpus()).result()
+    dense = densify_forked(problem.imu, keys, earth_rate_n, usable_cpus())
     res.timings_s["densify_wait_s"] = time.perf_counter() - tic
     return res, dense
 
