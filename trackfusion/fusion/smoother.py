@@ -34,8 +34,8 @@ from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
 from ..forked import usable_cpus
 from ..parallel import dask_client
-from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, marginal_covariance,
-                          part_marginal_covariances)
+from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, joint_marginal_covariance,
+                          marginal_covariance, part_marginal_covariances)
 from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
