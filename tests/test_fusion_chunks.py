@@ -211,3 +211,36 @@ def test_a_chunked_run_failing_late_leaves_no_output(runs, tmp_path, monkeypatch
         run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out")
     assert len(calls) == 3
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_imu_read_into_memory_is_freed_once_spilled(runs, tmp_path, monkeypatch):
+    """A run in chunks holds its IMU in a mapped file (sensors/spill.py): while its chunks are
+    smoothed, nothing keeps the arrays it read into memory alive (the run's own problem kept
+    them through the whole smoothing before: 144 MB on a 20 km survey at 500 Hz)."""
+    import gc
+    import weakref
+
+    import trackfusion.fusion.chunks as chunks_module
+    from trackfusion.sensors import spill
+
+    d = runs[0]
+    read = []
+    real_init = spill.SpilledImu.__init__
+
+    def init(self, imu, folder=None):
+        real_init(self, imu, folder)
+        read.extend(weakref.ref(a) for a in (imu.t_s, imu.gyro_radps, imu.accel_mps2))
+    monkeypatch.setattr(spill.SpilledImu, "__init__", init)
+    alive = []
+    real_smooth = chunks_module.smooth
+
+    def smooth(*args, **kwargs):
+        gc.collect()
+        alive.append(sum(r() is not None for r in read))
+        return real_smooth(*args, **kwargs)
+    monkeypatch.setattr(chunks_module, "smooth", smooth)
+    data = yaml.safe_load((d / "pipeline.yaml").read_text())
+    data.setdefault("smoother", {}).update(chunk_s=CHUNK_S, overlap_s=OVERLAP_S)
+    run(parse_pipeline(data, str(d / "pipeline.yaml"), d), tmp_path / "out")
+    assert len(read) == 3 and len(alive) >= 3
+    assert alive == [0] * len(alive)
