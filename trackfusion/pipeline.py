@@ -560,9 +560,9 @@ def _total_station_metrics(survey, res: SmootherResult, problem: FusionProblem, 
 def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
                         preintegrated: Preintegrated | None = None):
     """One batch by :func:`smooth` (``preintegrated``: see there) and its rows at the IMU rate,
-    densified once the smoother (with its marginals, which use every CPU) is done, in forked
-    children on the CPUs this process may use (fusion/densify_forked.py; the same rows as one
-    densify call). Returns (result, dense); the result's ``timings_s["densify_wait_s"]``: the
+    densified once the smoother (with its marginals, which use every CPU) is done, in parts on
+    the CPUs this process may use, this process one of them (fusion/densify_forked.py; the same
+    rows as one densify call). Returns (result, dense); the result's ``timings_s["densify_wait_s"]``: the
     wall time of the densification.
 
     After the marginals, not beside them: three processes on two cores cost more than they
@@ -745,9 +745,9 @@ def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float) ->
 
 def _with_spilled_imu(problem: FusionProblem, log: SensorLog, stage: Path):
     """The problem with its IMU spilled to ``stage`` and read back chunk by chunk (``log.imu`` too),
-    and the :class:`~trackfusion.sensors.spill.SpilledImu` holding it. The caller must drop its own reference to ``problem``: the arrays in
-    memory go with the last one (measured: kept alive by the caller's ``problem`` through the
-    whole smoothing before, 144 MB on a 20 km survey at 500 Hz)."""
+    and the :class:`~trackfusion.sensors.spill.SpilledImu` holding it. The caller must drop its
+    own reference to ``problem``: the arrays in memory go with the last one (the caller's kept
+    them alive through the whole smoothing before: 144 MB on a 20 km survey at 500 Hz)."""
     from .sensors.spill import SpilledImu
     spilled = SpilledImu(problem.imu, stage)
     log.imu = spilled.imu
