@@ -166,13 +166,15 @@ def test_station_covariance_from_the_sigma_parts_separator(bridge, monkeypatch):
 
     def recording(problem_, sol, gfg, partition, kf, keys, station_keys=None):
         out = real(problem_, sol, gfg, partition, kf, keys, station_keys)
-        seen.append((sol.gfg, out[1]))
+        seen.append((sol.gfg, SM._partition(problem_, kf, SM.MARGINAL_PART_S), out[1]))
         return out
     monkeypatch.setattr(SM, "_sigma_covariances", recording)
     monkeypatch.setattr(SM, "MARGINAL_PART_S", (batch.t_s[-1] - batch.t_s[0]) / 3 + 0.5)
     result = SM.smooth(problem)
-    (gfg, from_separator), = seen
-    assert from_separator is not None and np.array_equal(result.station_cov, from_separator)
+    (gfg, parts, from_separator), = seen
+    assert parts.count == 3 and from_separator is not None and np.array_equal(result.station_cov, from_separator)
+    for workers in (1, 2, 3):  # the same bits in any number of processes
+        assert np.array_equal(PT.part_marginal_covariances(parts, gfg, [], workers, [T(0), T(1)])[1], from_separator)
     exact = PT.joint_marginal_covariance(gfg, [T(0), T(1)])
     scale = np.abs(exact).max()
     assert np.abs(result.station_cov - exact).max() < 1e-10 * scale
