@@ -43,33 +43,42 @@ def keyframed():
     return imu, keys, np.array([0.0, 5e-5, 4e-5])
 
 
-def test_forked_parts_equal_one_densify_call(keyframed, monkeypatch):
+@pytest.fixture
+def small_parts(monkeypatch):
+    """Blocks of 20 intervals and parts of at least 30 (the 100 intervals of :func:`keyframed` in
+    whole blocks), forking allowed; the tasks submitted to any ForkedTasks, in order."""
+    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
+    monkeypatch.setattr(DF, "BLOCK", 20)
+    monkeypatch.setattr(DF, "can_fork", lambda n: True)
+    submitted = []
+    real_submit = ForkedTasks.submit
+
+    def submit(self, *args, **kwargs):
+        submitted.append(real_submit(self, *args, **kwargs))
+        return submitted[-1]
+    monkeypatch.setattr(ForkedTasks, "submit", submit)
+    return submitted
+
+
+def test_forked_parts_equal_one_densify_call(keyframed, small_parts, monkeypatch):
     """Two and three parts (this process one of them, children the others, writing into shared
     rows), and one call here where forking is not possible: the rows of one densify call."""
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)  # 100 intervals: parts of whole blocks
-    monkeypatch.setattr(DF, "BLOCK", 20)
     assert DF.part_bounds(keyframed[1].key_idx.size - 1, 2) == [(0, 40), (40, 100)]
     whole = densify(*keyframed, block=20)
-    forks = []
-    real_submit = ForkedTasks.submit
-    monkeypatch.setattr(ForkedTasks, "submit", lambda self, *a, **k: forks.append(1) or real_submit(self, *a, **k))
     for forked, workers, children in ((True, 2, 1), (True, 3, 2), (True, 1, 0), (False, 2, 0)):
         monkeypatch.setattr(DF, "can_fork", lambda n, forked=forked: forked)
-        forks.clear()
+        small_parts.clear()
         dense = DF.densify_forked(*keyframed, workers=workers)
-        assert len(forks) == children
+        assert len(small_parts) == children
         for name in ("t_s", "R_nb", "pos_n", "vel_n"):
             got = getattr(dense, name)
             np.testing.assert_array_equal(got, getattr(whole, name))
             assert got.flags.owndata
 
 
-def test_the_rows_are_private_once_returned(keyframed, monkeypatch):
+def test_the_rows_are_private_once_returned(keyframed, small_parts):
     """The children wrote into shared memory; the returned rows are this process's own copy: a
     later forked child writing into them changes nothing here."""
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
-    monkeypatch.setattr(DF, "BLOCK", 20)
-    monkeypatch.setattr(DF, "can_fork", lambda n: True)
     dense = DF.densify_forked(*keyframed, workers=2)
     before = dense.pos_n.copy()
 
@@ -81,46 +90,33 @@ def test_the_rows_are_private_once_returned(keyframed, monkeypatch):
     np.testing.assert_array_equal(dense.pos_n, before)
 
 
-def test_a_failed_part_is_raised_and_the_other_child_reaped(keyframed, monkeypatch):
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
-    monkeypatch.setattr(DF, "BLOCK", 20)
-    monkeypatch.setattr(DF, "can_fork", lambda n: True)
-    real_part = DF._part_into
-    children = []
-    real_submit = ForkedTasks.submit
-
-    def submit(self, *a, **k):
-        task = real_submit(self, *a, **k)
-        children.append(task)
-        return task
-    monkeypatch.setattr(ForkedTasks, "submit", submit)
-    for failing in (1, 2):  # a child's part, or the last one
-        def part(out, imu, keys, omega_ie_n, bounds):
-            if bounds[0] == DF.part_bounds(keys.key_idx.size - 1, 3)[failing][0]:
-                raise ValueError(f"part {failing} failed")
-            return real_part(out, imu, keys, omega_ie_n, bounds)
-        monkeypatch.setattr(DF, "_part_into", part)
-        children.clear()
-        with pytest.raises(ValueError, match=f"part {failing} failed"):
-            DF.densify_forked(*keyframed, workers=3)
-        assert len(children) == 2 and all(c.pid is None for c in children)  # both waited for or killed
+#: densify_forked's own part function (the tests below replace it)
+REAL_PART_INTO = DF._part_into
 
 
-def test_a_failure_here_kills_the_children(keyframed, monkeypatch):
-    """This process's own part fails: the children are killed and reaped, the error raised."""
-    monkeypatch.setattr(DF, "MIN_INTERVALS_PER_WORKER", 30)
-    monkeypatch.setattr(DF, "BLOCK", 20)
-    monkeypatch.setattr(DF, "can_fork", lambda n: True)
-    real_part = DF._part_into
-    children = []
-    real_submit = ForkedTasks.submit
-    monkeypatch.setattr(ForkedTasks, "submit", lambda self, *a, **k: children.append(real_submit(self, *a, **k)) or children[-1])
+def _failing_in(monkeypatch, failing: int, parts: int) -> None:
+    """``DF._part_into`` raising for part ``failing`` of ``parts`` (0: this process's own)."""
+    real_part = REAL_PART_INTO
 
     def part(out, imu, keys, omega_ie_n, bounds):
-        if bounds[0] == 0:
-            raise ValueError("part 0 failed")
+        if bounds[0] == DF.part_bounds(keys.key_idx.size - 1, parts)[failing][0]:
+            raise ValueError(f"part {failing} failed")
         return real_part(out, imu, keys, omega_ie_n, bounds)
     monkeypatch.setattr(DF, "_part_into", part)
+
+
+def test_a_failed_part_is_raised_and_the_other_child_reaped(keyframed, small_parts, monkeypatch):
+    for failing in (1, 2):  # a child's part, or the last one
+        _failing_in(monkeypatch, failing, 3)
+        small_parts.clear()
+        with pytest.raises(ValueError, match=f"part {failing} failed"):
+            DF.densify_forked(*keyframed, workers=3)
+        assert len(small_parts) == 2 and all(c.pid is None for c in small_parts)  # both waited for or killed
+
+
+def test_a_failure_here_kills_the_children(keyframed, small_parts, monkeypatch):
+    """This process's own part fails: the children are killed and reaped, the error raised."""
+    _failing_in(monkeypatch, 0, 2)
     with pytest.raises(ValueError, match="part 0 failed"):
         DF.densify_forked(*keyframed, workers=2)
-    assert len(children) == 1 and children[0].pid is None
+    assert len(small_parts) == 1 and small_parts[0].pid is None

@@ -562,8 +562,8 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
     """One batch by :func:`smooth` (``preintegrated``: see there) and its rows at the IMU rate,
     densified once the smoother (with its marginals, which use every CPU) is done, in parts on
     the CPUs this process may use, this process one of them (fusion/densify_forked.py; the same
-    rows as one densify call). Returns (result, dense); the result's ``timings_s["densify_wait_s"]``: the
-    wall time of the densification.
+    rows as one densify call). Returns (result, dense); the result's
+    ``timings_s["densify_wait_s"]``: the wall time of the densification.
 
     After the marginals, not beside them: three processes on two cores cost more than they
     overlapped (the 53 min bridge, back to back: marginals and densification 9.8 s in turn
@@ -571,9 +571,7 @@ def _smooth_and_densify(problem: FusionProblem, cfg, say: Callable[[str], None],
     earth_rate_n = geodesy.earth_rate_n(problem.origin) if cfg.factors.imu.earth_rate else np.zeros(3)
     res = smooth(problem, say, preintegrated=preintegrated)
     tic = time.perf_counter()
-    keys = KeyframeStates(res.key_idx, res.R_nb, res.pos_n, res.vel_n, res.gyro_bias_radps, res.accel_bias_mps2,
-                          geodesy.gravity_n(res.pos_n, problem.origin))
-    dense = densify_forked(problem.imu, keys, earth_rate_n, usable_cpus())
+    dense = densify_forked(problem.imu, KeyframeStates.of(res, problem.origin), earth_rate_n, usable_cpus())
     res.timings_s["densify_wait_s"] = time.perf_counter() - tic
     return res, dense
 
