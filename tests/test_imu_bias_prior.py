@@ -67,7 +67,10 @@ def test_a_misaligned_accelerometer_is_taken_as_bias_not_as_grade(tmp_path):
     left = {}
     for name, pb in (("datasheet", problem), ("turn-on bias only", old)):
         res = smooth(pb)
+        assert res.rejected_gnss == []  # noise-free fixes: a rejected one would move the grade
         moving = np.linalg.norm(res.vel_n, axis=1) > 1.0
         left[name] = abs(float(np.mean(res.accel_bias_mps2[moving, 0])) - offset) / offset
-    # measured: 29 % of the offset left with the datasheet prior, 95 % with the turn-on bias alone
-    assert left["datasheet"] < 0.5 * left["turn-on bias only"], left
+    # measured: 72 % of the offset left with the datasheet prior, 95 % with the turn-on bias alone
+    # (29 % was measured while the noise estimation's path rejected one good fix of the 209:
+    # docs/error_models.md)
+    assert left["datasheet"] < 0.8 * left["turn-on bias only"], left
