@@ -210,7 +210,8 @@ class NoiseComponents:
                 target = _newton_step(f0, g.factor, g.redundancy / max(g.rows, 1)) if use else 1.0
                 if abs(target / f0 - 1.0) > MIN_CHANGE:
                     moved = True
-                    self.applied.setdefault(name, {})[cname] = target
+                    # a new dict: the graph solved holds the old one (its last step stays its own)
+                    self.applied[name] = {**self.applied.get(name, {}), cname: target}
             self.estimates[name] = new
         if moved and self.refits < MAX_REFITS:
             self.refits += 1

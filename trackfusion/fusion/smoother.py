@@ -32,7 +32,7 @@ from .normal_solve import tree_factor
 from .preintegration import body_deltas, preintegrate
 from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
-from ..forked import usable_cpus
+from ..forked import ForkedTasks, can_fork, usable_cpus
 from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, joint_marginal_covariance,
                           marginal_covariance, part_marginal_covariances)
@@ -1162,13 +1162,21 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
+
+        def converge(tell: Callable[[str], None], sol: _Solved = sol, G: _Graph = G, values=values) -> _Solved:
+            return gauss_newton(G, values, b.kf.with_scale, stop, tell, sol, partition)
+        settled = None
         # the groups' noise from the same solve as the GNSS white noise's (one round for both,
         # as Helmert's estimate takes every component at once); not while readings were rejected
         if components is not None and not components.fixed and not rejected:
-            refit |= _estimate_components(components, G, sol, gates.labels())
+            if reweighted and not refit and partition is None and can_fork():
+                more, settled = _estimate_while_converging(components, G, sol, gates.labels(), converge, say)
+            else:
+                more = _estimate_components(components, G, sol, gates.labels())
+            refit |= more
         if not (rejected or refit):
             if gates.gating or reweighted:  # settled: converge to the configured tolerance (the same graph: carry on)
-                sol = gauss_newton(G, values, b.kf.with_scale, stop, say, sol, partition)
+                sol = settled or converge(say)
                 iterations += sol.iterations
             break
         reweighted = not rejected
@@ -1242,6 +1250,33 @@ def _estimate_components(components: "nc.NoiseComponents", G: _Graph, sol: "_Sol
         ordering = gtsam.Ordering.ColamdGaussianFactorGraph(sol.gfg)
         tree = _eliminate(sol.gfg, ordering)
     return components.update(G.builders, sol.state, sol.gfg, G.graph.size(), tree_factor(tree, ordering), labels)
+
+
+def _estimate_while_converging(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved",
+                               labels: dict[str, np.ndarray], converge: Callable[[Callable[[str], None]], "_Solved"],
+                               say: Callable[[str], None]) -> tuple[bool, "_Solved | None"]:
+    """:func:`_estimate_components` in a forked child while this process takes the step that shows
+    the solve converged, ``converge(say)``: the round needs that step when the estimate settles
+    (after a refit round it usually does, docs/solver_speed.md). Returns whether to solve again
+    and, when not, the converged solve; a step the estimate makes void is dropped (and its progress
+    lines with it). ``components`` becomes the child's: the same numbers as in turn."""
+    said: list[str] = []
+    with ForkedTasks() as tasks:
+        task = tasks.submit("estimating the sensor noise", _estimate_in_child, components, G, sol, labels)
+        stepped = converge(said.append)
+        refit, estimated = task.result()
+    vars(components).update(vars(estimated))
+    if refit:
+        return True, None
+    for line in said:
+        say(line)
+    return False, stepped
+
+
+def _estimate_in_child(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved",
+                       labels: dict[str, np.ndarray]) -> tuple[bool, "nc.NoiseComponents"]:
+    refit = _estimate_components(components, G, sol, labels)
+    return refit, components
 
 
 def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
