@@ -688,24 +688,32 @@ class StopRule:
     step_tol_m: float = 0.0
 
 
+@dataclass(frozen=True)
+class _Start:
+    """How a solve without a ``previous`` one starts (:func:`gauss_newton`): ``warm``: its values
+    are the converged estimate of this graph with other noise weights (fusion/convergence.py);
+    ``ordering``: the elimination order of a graph of this one's structure (COLAMD's otherwise)."""
+
+    warm: bool = False
+    ordering: gtsam.Ordering | None = None
+
+
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRule, say: Callable[[str], None],
-                 previous: _Solved | None = None, partition: "Partition | None" = None, warm: bool = False,
-                 ordering: gtsam.Ordering | None = None) -> _Solved:
+                 previous: _Solved | None = None, partition: "Partition | None" = None,
+                 start: _Start = _Start()) -> _Solved:
     """Gauss-Newton with step halving (see :class:`_Solved`), until ``stop`` (:class:`StopRule`).
     ``previous``: the solve of the same graph that ended at ``values``
     (e.g. a gating round whose gate rejected nothing): its ordering and step history carry on,
     and when its steps have converged already its tree is returned without a new iteration.
     ``partition``: each step solved in time parts (fusion/partitioned.py: the same step; the
-    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`). ``warm``: ``values`` is
-    the converged estimate of this graph with other noise weights (fusion/convergence.py).
-    ``ordering``: the elimination order of a graph of this one's structure (COLAMD's otherwise)."""
+    returned ``tree`` is then its :class:`~.partitioned.PartMarginals`). ``start``: :class:`_Start`."""
     state = previous.state if previous is not None else _State.of(values, with_scale)
     blocks = None if previous is not None else []  # the vectorised factors' blocks at ``values``
     cost = cost0 = previous.cost if previous is not None else _total_cost(G, values, with_scale, state, blocks)
     it = 0
-    tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, ordering)
+    tree, ordering = (previous.tree, previous.ordering) if previous is not None else (None, start.ordering)
     gfg = previous.gfg if previous is not None else None
-    history = previous.history.copy() if previous is not None else StepHistory(warm=warm)
+    history = previous.history.copy() if previous is not None else StepHistory(warm=start.warm)
     if history.converged(stop.step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history, gfg)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
@@ -1161,8 +1169,8 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         # moves it to the new weights' (the next one is ~1e-5 of it: docs/solver_speed.md)
         this_stop = replace(round_stop, max_iterations=1) if reweighted else round_stop
         # (a reweighted round's graph has the last one's factors: COLAMD would give its ordering again)
-        sol = gauss_newton(G, values, b.kf.with_scale, this_stop, say, partition=partition, warm=reweighted,
-                           ordering=sol.ordering if reweighted else None)
+        sol = gauss_newton(G, values, b.kf.with_scale, this_stop, say, partition=partition,
+                           start=_Start(reweighted, sol.ordering if reweighted else None))
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
