@@ -50,8 +50,8 @@ adds ``PRIOR_DOF`` rows at the datasheet's variance: with the library's NHC sigm
 bridge whose violation is 0.094 mm/s, those 8 rows outweighed the 2 200 measured ones, 17 % over);
 the floor keeps a noise-free survey's refits from running a factor to 0 (the mode alone went to
 ``exp(-r / PRIOR_DOF)``: the short noise-free open track's odometer to 0.0003, its GNSS
-correlated part to 0.0003). It is applied (the group's sigmas scaled by ``sqrt(f)``, the Huber weights and the
-gates then decided on the estimated noise) when it differs from 1 by more than
+correlated part to 0.0003). It is applied (the group's sigmas scaled by ``sqrt(f)``, the Huber
+weights and the gates then decided on the estimated noise) when it differs from 1 by more than
 :data:`SIGNIFICANCE` sigmas and by more than :data:`MIN_CHANGE`; the solve is repeated (at most
 :data:`MAX_REFITS` times) while an applied factor moves by more than :data:`MIN_CHANGE`.
 A correct datasheet therefore leaves the solve as it was. The groups of :data:`FLOOR_GROUPS`

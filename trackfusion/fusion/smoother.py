@@ -1287,6 +1287,8 @@ def _estimate_while_converging(components: "nc.NoiseComponents", G: _Graph, sol:
 
 def _estimate_in_child(components: "nc.NoiseComponents", G: _Graph, sol: "_Solved",
                        labels: dict[str, np.ndarray]) -> tuple[bool, "nc.NoiseComponents"]:
+    """The forked child's part of :func:`_estimate_while_converging`: the estimate, and the
+    components it leaves (sent back: the child's memory goes with it)."""
     refit = _estimate_components(components, G, sol, labels)
     return refit, components
 
