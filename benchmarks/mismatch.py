@@ -40,6 +40,7 @@ import argparse
 import json
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -112,6 +113,7 @@ def drawn_sigmas(d: Path) -> dict:
     from trackfusion.simulation.nhc_sigma import nhc_sigmas_mm_per_s
     from trackfusion.simulation.scenarios import _imu_spec, _motion_plan
     cfg = ScenarioConfig.model_validate(json.loads((d / "truth.json").read_text())["config"])
+    survey = pipeline_survey(d)
     imu: ImuSpec = _imu_spec(cfg.imu)
     from trackfusion.sensors.fileio import read_csv_table
     from trackfusion.simulation.nhc_sigma import max_speed_mps
@@ -122,9 +124,9 @@ def drawn_sigmas(d: Path) -> dict:
     top = nhc_sigmas_mm_per_s(cfg, _motion_plan(cfg).chainage_range_m, imu.gyro_arw_deg_per_sqrt_h, imu.rate_hz)
     out = {"imu": imu.model_dump(), "nhc_top_speed_mm_per_s": top,
            "nhc_mm_per_s": {a: v * over_survey for a, v in top.items()},
-           "nhc_realized_mm_per_s": realized_nhc_mm_per_s(d)}
+           "nhc_realized_mm_per_s": realized_nhc_mm_per_s(d, survey)}
     if cfg.odometer is not None:
-        out["odometer_mm"] = realized_odometer_mm(d, cfg)
+        out["odometer_mm"] = realized_odometer_mm(d, cfg, survey)
     if cfg.gnss is not None:
         g = aiding.GnssSpec(**{a: b for a, b in cfg.gnss.items() if a != "lever_arm_b_m"})
         gm_mm = g.sigmas_m()[1] * 1e3  # the Gauss-Markov part with the ppm x baseline term in quadrature
@@ -149,49 +151,61 @@ def datasheet_config(d: Path) -> dict:
     return cfg
 
 
-def realized_odometer_mm(d: Path, cfg) -> float:
+@dataclass
+class PipelineSurvey:
+    """The survey in a folder as its ``pipeline.yaml`` reads it: the ``log``, the fusion
+    ``problem`` ``trackfusion run`` builds from it, and its keyframes' times ``t_key_s`` (K,)."""
+
+    log: object
+    problem: object
+    t_key_s: np.ndarray
+
+
+def pipeline_survey(d: Path) -> PipelineSurvey:
+    """:class:`PipelineSurvey` of the survey in ``d`` (its log read once for every oracle)."""
+    from trackfusion import pipeline as P
+    from trackfusion.fusion.smoother import _keyframes  # the smoother's own keyframes
+    pl = P.load_pipeline(d / "pipeline.yaml")
+    log = P._read(pl)[0]
+    problem, _ = P.build_problem(pl, log, lambda _m: None)
+    return PipelineSurvey(log, problem, problem.imu.t_s[_keyframes(problem)])
+
+
+def realized_odometer_mm(d: Path, cfg, survey: PipelineSurvey) -> float:
     """RMS [mm] of the error the odometer increments between the pipeline's keyframes carry in
     the survey in ``d``: its logged distance against the exact wheel distance of the same draws
     (``simulate_aiding(..., ideal=True)``) times the drawn scale, both interpolated to the
     keyframes as the odometer factor does. The error is the difference of two readings'
     quantisation: at a steady speed the ticks per interval beat against it, so it is far from
     the ``q / sqrt(6)`` of independent uniform errors (bridge seed 2: 0.0089 against 0.0144 mm)."""
-    from trackfusion.fusion.smoother import keyframe_indices
-    from trackfusion.sensors.mcap_log import read_log
     from trackfusion.simulation.scenarios import simulate_aiding
     truth = json.loads((d / "truth.json").read_text())
     odo = truth["errors"]["odometer"]
     if odo.get("slips") or odo.get("gross_error_indices"):
         raise ValueError(f"{d}: the odometer's realised noise is measured on surveys without slips or gross errors")
-    log = read_log(d / "log.mcap")
+    log = survey.log
     exact = simulate_aiding(cfg, truth["seed"], ideal=True).odometer
     drift = odo["radius_drift_ppm_per_h"] * 1e-6 * (exact.t_s - exact.t_s[0]) / 3600.0
     unquantised = np.cumsum(np.diff(exact.distance_m, prepend=0.0) * (1.0 + odo["scale_error"] + drift))
-    spacing_s = yaml.safe_load((d / "pipeline.yaml").read_text())["keyframes"]["spacing_s"]
-    t_key = log.imu.t_s[keyframe_indices(log.imu.t_s, spacing_s, log.gnss.t_s if log.gnss is not None else None)]
-    t_key = t_key[(t_key >= exact.t_s[0]) & (t_key <= exact.t_s[-1])]
+    t_key = survey.t_key_s[(survey.t_key_s >= exact.t_s[0]) & (survey.t_key_s <= exact.t_s[-1])]
     err = np.diff(np.interp(t_key, log.odometer.t_s, log.odometer.distance_m) - np.interp(t_key, exact.t_s, unquantised))
     return float(np.sqrt(np.mean(err**2)) * 1e3)
 
 
-def realized_nhc_mm_per_s(d: Path) -> dict[str, float]:
+def realized_nhc_mm_per_s(d: Path, survey: PipelineSurvey) -> dict[str, float]:
     """RMS [mm/s] of the lateral and vertical velocity the NHC point really had at the pipeline's
     keyframes in the survey in ``d``: fusion/factors.py ``nhc_residual`` of the truth (truth.csv's
     attitude and velocity interpolated to the keyframe times, the body rate w.r.t. ``n`` from its
     attitude increments) with the pipeline's lever arm and mounting. The noise the NHC factor
     really meets, where ``nhc_mm_per_s`` is the track's violation at the top speed scaled to the
     survey's RMS speed (a short survey runs over a few hundred metres of one irregularity draw)."""
-    from trackfusion import pipeline as P
     from trackfusion.fusion import factors as fx
-    from trackfusion.fusion.smoother import _keyframes
     from trackfusion.rotations import R_from_quat, so3_exp, so3_log
     from trackfusion.sensors.fileio import read_csv_table
-    pl = P.load_pipeline(d / "pipeline.yaml")
-    problem, _ = P.build_problem(pl, P._read(pl)[0], lambda _m: None)
+    trolley = survey.problem.trolley
     truth = read_csv_table(d / "truth.csv")
     t = truth["t_s"]
-    t_key = problem.imu.t_s[_keyframes(problem)]
-    t_key = t_key[(t_key >= t[0]) & (t_key <= t[-1])]
+    t_key = survey.t_key_s[(survey.t_key_s >= t[0]) & (survey.t_key_s <= t[-1])]
     R = R_from_quat(np.column_stack([truth[c] for c in ("qw", "qx", "qy", "qz")]))
     vel = np.column_stack([truth[c] for c in ("ve_mps", "vn_mps", "vu_mps")])
     step = so3_log(np.einsum("kji,kjl->kil", R[:-1], R[1:]))  # body rotation between truth rows
@@ -201,7 +215,7 @@ def realized_nhc_mm_per_s(d: Path) -> dict[str, float]:
     mid = 0.5 * (t[:-1] + t[1:])
     w_nb_b = np.column_stack([np.interp(t_key, mid, rate[:, j]) for j in range(3)])
     r, _, _ = fx.nhc_residual(R[i] @ so3_exp(a[:, None] * step[i]), vel[i] + a[:, None] * (vel[i + 1] - vel[i]),
-                              w_nb_b, problem.trolley.nhc_lever_arm_b, problem.trolley.R_vb)
+                              w_nb_b, trolley.nhc_lever_arm_b, trolley.R_vb)
     rms = np.sqrt(np.mean(r**2, axis=0)) * 1e3
     return {"lateral": float(rms[0]), "vertical": float(rms[1])}
 
