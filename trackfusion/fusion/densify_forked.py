@@ -14,6 +14,7 @@ later forked child (the outputs) cannot write into this process's arrays.
 from __future__ import annotations
 
 import mmap
+from dataclasses import fields
 
 import numpy as np
 
@@ -58,8 +59,8 @@ def _part_into(out: DenseTrajectory, imu: ImuData, keys: KeyframeStates, omega_i
     if b < keys.key_idx.size - 1:
         d = d.select(slice(None, -1))  # the next part starts there
     first = int(keys.key_idx[a] - keys.key_idx[0])
-    for name in ("t_s", "R_nb", "pos_n", "vel_n"):
-        getattr(out, name)[first:first + d.t_s.size] = getattr(d, name)
+    for f in fields(DenseTrajectory):
+        getattr(out, f.name)[first:first + d.t_s.size] = getattr(d, f.name)
 
 
 def densify_forked(imu: ImuData, keys: KeyframeStates, omega_ie_n: np.ndarray, workers: int) -> DenseTrajectory:
@@ -78,4 +79,4 @@ def densify_forked(imu: ImuData, keys: KeyframeStates, omega_ie_n: np.ndarray, w
                          omega_ie_n, bounds[i])
         _part_into(out, imu, keys, omega_ie_n, bounds[0])
         tasks.wait()
-    return DenseTrajectory(*(np.array(getattr(out, n)) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+    return DenseTrajectory(*(np.array(getattr(out, f.name)) for f in fields(out)))

@@ -32,7 +32,7 @@ class DenseTrajectory:
     @classmethod
     def concatenate(cls, parts: "list[DenseTrajectory]") -> "DenseTrajectory":
         """The parts one after the other (in time order)."""
-        return cls(*(np.concatenate([getattr(d, n) for d in parts]) for n in ("t_s", "R_nb", "pos_n", "vel_n")))
+        return cls(*(np.concatenate([getattr(d, f.name) for d in parts]) for f in fields(cls)))
 
     def select(self, sel) -> "DenseTrajectory":
         """The samples ``sel`` (a slice, an index array or a boolean mask over the N samples)."""
