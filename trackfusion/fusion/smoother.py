@@ -896,9 +896,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     For overlapping chunks (fusion/chunks.py): ``join`` is the previous chunk's state at this
     chunk's first sample (replaces the alignment and the anchor); with ``hand_over_t_s`` the
     result carries the state at the keyframe nearest to that time (``SmootherResult.hand_over``).
-    ``preintegrated``: this
-    problem's :func:`preintegrate_problem`, done beforehand (the pipeline does it while the total
-    stations are prepared in a forked child); its ``wall_s`` counts in ``timings_s["preintegrate_s"]``.
+    ``preintegrated``: this problem's :func:`preintegrate_problem`, done beforehand (the pipeline
+    does it while the total stations are prepared in a forked child); its ``wall_s`` counts in
+    ``timings_s["preintegrate_s"]``.
     """
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
@@ -936,7 +936,8 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                        for m in range(int(kf.bias_seg[-1]) + 1)])[kf.bias_seg]
 
     tic = time.perf_counter()
-    (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf, hand_over_t_s, gates)
+    (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf,
+                                                                   hand_over_t_s, gates)
     if hand_over is not None and components is not None:
         hand_over = replace(hand_over, noise_applied={g: dict(c) for g, c in components.applied.items()})
     timings["marginals_s"] = time.perf_counter() - tic
