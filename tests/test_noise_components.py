@@ -270,3 +270,92 @@ class _ZeroBlocks:
 
     def whitened(self) -> np.ndarray:
         return np.zeros((self.n, 1))
+
+
+# A low-share component: the steps of a random walk (the tested group, like the GNSS correlated
+# error's steps) seen through noisy direct observations, so that the observations hold most of
+# the information on the walk: r / n about 0.05, and not evenly spread over the steps' rows.
+K_LOW, Q_LOW, SW_LOW = 600, 0.1, 1.0
+
+
+def _low_share_problem(k: float, seed: int, states: int = K_LOW):
+    rng = np.random.default_rng(seed)
+    truth = np.cumsum(rng.normal(0.0, k * Q_LOW, (states, 3)), axis=0)
+    y = truth + rng.normal(0.0, SW_LOW, (states, 3))
+    graph = gtsam.NonlinearFactorGraph()
+    for i in range(states):
+        graph.add(gtsam.PriorFactorVector(E(i), y[i], gtsam.noiseModel.Isotropic.Sigma(3, SW_LOW)))
+    keys = E(0) + np.arange(states)
+    eye = np.broadcast_to(np.eye(3), (states - 1, 3, 3))
+
+    def build(state) -> fx.LinearBlocks:
+        return fx.LinearBlocks([keys[:-1], keys[1:]], [-eye, eye], state[1:] - state[:-1],
+                               np.full((states - 1, 3), Q_LOW), None)
+    values = gtsam.Values()
+    for i in range(states):
+        values.insert(E(i), y[i])
+    return graph, build, values
+
+
+def _low_share_estimate(k: float, seed: int, states: int = K_LOW, refits: int = 6) -> nc.NoiseComponents:
+    graph, build, values = _low_share_problem(k, seed, states)
+    est = nc.NoiseComponents()
+    for _ in range(refits):
+        builders = est.wrap([("gnss_error", build)], {})
+        values, tree, gfg, ordering = _solve(graph, builders, values)
+        if not est.update(builders, gtsam.utilities.extractVectors(values, "e"), gfg, graph.size(),
+                          tree_factor(tree, ordering), {}):
+            break
+    return est
+
+
+def test_low_share_redundancy_and_slope_against_the_dense_hat_matrix():
+    """The own draws' ``r = tr((I - H)_gg)`` and slope ``t / r``, ``t = tr((I - H)_gg^2)``, of
+    the low-share group against the dense hat matrix of its whitened system (datasheet applied)."""
+    graph, build, values = _low_share_problem(2.0, seed=0)
+    est = nc.NoiseComponents()
+    _, tree, gfg, ordering = _solve(graph, [("gnss_error", build)], values)
+    est.update([("gnss_error", build)], gtsam.utilities.extractVectors(values, "e"), gfg, graph.size(),
+               tree_factor(tree, ordering), {})
+    n = 3 * K_LOW
+    D = (np.eye(K_LOW) - np.eye(K_LOW, k=1))[:-1] / Q_LOW
+    A = np.vstack([np.eye(n) / SW_LOW, np.kron(D, np.eye(3))])  # observations, then the steps
+    P = np.eye(A.shape[0]) - A @ np.linalg.solve(A.T @ A, A.T)
+    steps = np.arange(n, A.shape[0]).reshape(K_LOW - 1, 3)
+    for name, cols in (("horizontal", [0, 1]), ("vertical", [2])):
+        g = est.estimates["gnss_error"][name]
+        Pgg = P[np.ix_(steps[:, cols].ravel(), steps[:, cols].ravel())]
+        r, t = np.trace(Pgg), np.sum(Pgg * Pgg)
+        assert r / Pgg.shape[0] < 0.1  # the low share this test is about
+        assert g.fixed_point
+        assert g.redundancy == pytest.approx(r, rel=0.08)
+        # Monte Carlo error of t over 16 draws: sqrt(2 tr(P_gg^4) / 16), about 10 % of it on the
+        # vertical's 13 (its eigenvalues near 0 or 1)
+        assert g.slope == pytest.approx(t / r, rel=0.15)
+        assert g.slope > 5 * g.redundancy / g.rows  # uneven: the even-share slope would be far off
+
+
+def test_low_share_estimate_is_unbiased_and_its_sigma_honest():
+    """Over 8 draws of a group twice as noisy as configured (variance factor 4), on a walk long
+    enough that the data outweigh the datasheet prior (``t`` about 130 vertical, 260 horizontal):
+    the normalised errors ``(f - 4) / sigma`` average near 0 with an RMS near 1. The even-share
+    estimate (the plain one of the other groups) stayed near the datasheet: mean -0.93."""
+    z = []
+    for seed in range(8):
+        est = _low_share_estimate(2.0, seed, states=6000)
+        z += [(g.factor - 4.0) / g.sigma for g in est.estimates["gnss_error"].values()]
+    z = np.array(z)
+    assert abs(z.mean()) < 0.5
+    assert 0.6 < np.sqrt(np.mean(z**2)) < 1.5
+
+
+def test_low_share_noise_free_group_stays_at_its_floor():
+    """A low-share group with no noise at all: its ``W`` is negative and the estimate is the
+    floor ``PRIOR_DOF / (PRIOR_DOF + t)``, never a runaway to 0."""
+    graph, build, values = _low_share_problem(0.0, seed=1)
+    est = nc.NoiseComponents()
+    values, tree, gfg, ordering = _solve(graph, [("gnss_error", build)], values)
+    est.update([("gnss_error", build)], gtsam.utilities.extractVectors(values, "e"), gfg, graph.size(),
+               tree_factor(tree, ordering), {})
+    for g in est.estimates["gnss_error"].values():
+        assert g.factor == pytest.approx(nc.PRIOR_DOF / (nc.PRIOR_DOF + g.slope * g.redundancy), rel=1e-9)

@@ -56,6 +56,22 @@ weights and the gates then decided on the estimated noise) when it differs from 
 :data:`MAX_REFITS` times) while an applied factor moves by more than :data:`MIN_CHANGE`.
 A correct datasheet therefore leaves the solve as it was. The groups of :data:`FLOOR_GROUPS`
 keep their configured sigma as a floor.
+
+**Low-share components.** The Newton slope ``r / n`` and the ``2 / r`` variance assume every
+row of the component carries the same share of redundancy. The GNSS correlated steps do not:
+the error states absorb most of them and a few long-wave modes carry the rest (44 min
+``open-track-gnss``: ``r / n = 0.023``, but ``t / r = 0.45`` with ``t = tr((I - H)_gg^2)``),
+and the shared draws' Monte Carlo error of ``r`` (``tr(H_gg)`` of thousands of rows, less
+``n``) is a third of ``r`` itself. Since ``I - H`` is a symmetric projection, ``E[f0 Omega] =
+f t + f0 (r - t)``: the plain estimate moves only ``t / r`` of a change of the true factor and
+stays near the datasheet. A component whose share is below :data:`LOW_SHARE` therefore gets
+:data:`DRAWS` right-hand sides on its own rows (:func:`_own_draws`: ``r = E[z^T (I - H) z]``
+and ``t = E[|((I - H) z)_g|^2]``); ``W = f0 (Omega - r + t)``, whose expectation is ``f t``,
+is then taken as ``f`` times a chi-square of ``t`` degrees of freedom, and the estimate is the
+posterior's mode above with ``(W, t)`` for ``(f0 Omega, r)``, floored at ``PRIOR_DOF /
+(PRIOR_DOF + t)``: the fixed point itself, applied as it is (no Newton step). Its 1-sigma is
+``f sqrt(2 / (PRIOR_DOF + t))`` with ``f0`` times the Monte Carlo error of ``r`` over ``t`` in
+quadrature.
 """
 
 from __future__ import annotations
@@ -87,6 +103,9 @@ MAX_STEP_GAIN = 5.0
 GATE_TAIL = 1e-4
 #: random right-hand sides of the redundancy estimate
 DRAWS = 16
+#: a component whose redundancy share ``r / n`` (from the shared draws) is below this gets draws
+#: of its own (module docstring, "Low-share components")
+LOW_SHARE = 0.5
 #: significant digits an applied factor is rounded to (its own uncertainty is >= 1 %): the
 #: one-batch and the partitioned solve, whose estimates differ by rounding, apply the same factor
 APPLIED_DIGITS = 3
@@ -132,19 +151,25 @@ def scale_blocks(blocks: fx.LinearBlocks, factor_rows: np.ndarray) -> fx.LinearB
 @dataclass
 class GroupEstimate:
     """One component's estimate: ``factor`` (true over configured variance), its ``sigma``,
-    ``applied`` (what the last solve used), ``redundancy`` ``r``, ``rows`` ``n``."""
+    ``applied`` (what the last solve used), ``redundancy`` ``r``, ``rows`` ``n``, ``slope``: the
+    share of a change of the true factor that the plain estimate shows (``r / n``, or ``t / r``
+    from a low-share component's own draws, module docstring), ``fixed_point``: the estimate is
+    the fixed point itself (a low-share component's), not one step towards it."""
 
     factor: float
     sigma: float
     applied: float
     redundancy: float
     rows: int
+    slope: float = 1.0
+    fixed_point: bool = False
 
     def to_json(self, configured_sigma: float | None, unit: str) -> dict:
         out = {"variance_factor": self.factor, "variance_factor_sigma": self.sigma,
                "sigma_scale": float(np.sqrt(self.factor)),
                "sigma_scale_sigma": float(self.sigma / (2 * np.sqrt(self.factor))),
-               "applied_variance_factor": self.applied, "redundancy": self.redundancy, "rows": self.rows}
+               "applied_variance_factor": self.applied, "redundancy": self.redundancy, "rows": self.rows,
+               "slope": self.slope}
         if configured_sigma is not None:
             out[f"configured_sigma_{unit}"] = configured_sigma
             out[f"estimated_sigma_{unit}"] = float(configured_sigma * np.sqrt(self.factor))
@@ -209,14 +234,16 @@ class NoiseComponents:
             idx, comp = _component_index(name, blk, labels.get(name))
             inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0), self.quanta_m.get(name, 0.0)) \
                 if blk.huber_k is not None else np.ones(blk.residual.shape[0], bool)  # module docstring: outliers
+            rows = [(idx == c) & inlier[:, None] for c in range(len(comp))]
+            own = _own_draws(blk, rows, products[name], factor, self.seed)
             new = {}
             for c, cname in enumerate(comp):
                 f0 = self.applied.get(name, {}).get(cname, 1.0)
-                g = _component_estimate(blk, products[name], (idx == c) & inlier[:, None], f0)
+                g = _component_estimate(blk, products[name], rows[c], f0, own.get(c))
                 new[cname] = g
                 use = abs(g.factor - 1.0) > max(SIGNIFICANCE * g.sigma, MIN_CHANGE) and not (
                     name in FLOOR_GROUPS and g.factor < 1.0)
-                target = _newton_step(f0, g.factor, g.redundancy / max(g.rows, 1)) if use else 1.0
+                target = (_rounded(g.factor) if g.fixed_point else _newton_step(f0, g.factor, g.slope)) if use else 1.0
                 if abs(target / f0 - 1.0) > MIN_CHANGE:
                     moved = True
                     # a new dict: the graph solved holds the old one (its last step stays its own)
@@ -240,20 +267,60 @@ def _newton_step(f0: float, f: float, redundancy_share: float) -> float:
     logarithms (a factor stays positive), with the step at most :data:`MAX_STEP_GAIN` times the
     plain one; rounded to :data:`APPLIED_DIGITS` significant digits."""
     gain = min(1.0 / max(redundancy_share, 1e-9), MAX_STEP_GAIN)
-    return float(f"{f0 * np.exp(np.log(f / f0) * gain):.{APPLIED_DIGITS}g}")
+    return _rounded(f0 * np.exp(np.log(f / f0) * gain))
 
 
-def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float) -> GroupEstimate:
+def _rounded(f: float) -> float:
+    """``f`` to :data:`APPLIED_DIGITS` significant digits."""
+    return float(f"{f:.{APPLIED_DIGITS}g}")
+
+
+def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float,
+                        own: tuple[float, float, float] | None = None) -> GroupEstimate:
     """The estimate (module docstring) of the component whose residual rows are ``rows`` (K, m)
-    bool, from the draws' row products ``z (H z)`` (D, K, m) and the factor ``f0`` applied."""
+    bool, from the draws' row products ``z (H z)`` (D, K, m) and the factor ``f0`` applied; a
+    low-share component's ``own`` draws (:func:`_own_draws`: ``r``, its Monte Carlo error, ``t``)
+    make it the fixed point (module docstring, "Low-share components")."""
     n = int(rows.sum())
-    e2 = blk.whitened() ** 2  # unweighted: the gate took the outliers out, a Huber weight would bias it low
+    square_sum = f0 * float((blk.whitened()[rows] ** 2).sum())  # unweighted: a Huber weight would bias it low
+    if own is not None:
+        r, r_sd, t = max(own[0], 1.0), own[1], max(own[2], 1.0)
+        f = max(_posterior_mode(square_sum - f0 * (r - t), t), PRIOR_DOF / (PRIOR_DOF + t))
+        sigma = float(np.hypot(f * np.sqrt(2.0 / (PRIOR_DOF + t)), f0 * r_sd / t))
+        return GroupEstimate(f, sigma, f0, r, n, t / r, fixed_point=True)
     per_draw = np.array([p[rows].sum() for p in products])
     r = max(n - float(per_draw.mean()), 1.0)
     r_sd = float(per_draw.std(ddof=1) / np.sqrt(per_draw.size)) if per_draw.size > 1 else 0.0
-    f = max(_posterior_mode(f0 * float(e2[rows].sum()), r), PRIOR_DOF / (PRIOR_DOF + r))
+    f = max(_posterior_mode(square_sum, r), PRIOR_DOF / (PRIOR_DOF + r))
     sigma = f * float(np.hypot(np.sqrt(2.0 / (PRIOR_DOF + r)), r_sd / r))
-    return GroupEstimate(f, sigma, f0, r, n)
+    return GroupEstimate(f, sigma, f0, r, n, r / max(n, 1))
+
+
+def _own_draws(blk: fx.LinearBlocks, rows: list[np.ndarray], products: np.ndarray, factor: TreeFactor,
+               seed: int) -> dict[int, tuple[float, float, float]]:
+    """Per component ``c`` of ``rows`` (each (K, m) bool) whose redundancy share from the
+    shared draws ``products`` (D, K, m) is below :data:`LOW_SHARE`: its redundancy
+    ``r = tr((I - H)_gg)``, that estimate's Monte Carlo error, and ``t = tr((I - H)_gg^2)``, from
+    :data:`DRAWS` right-hand sides ``z`` on its own rows only (``E[z^T (I - H) z]`` and
+    ``E[|((I - H) z)_g|^2]``), all components in one pair of triangular passes."""
+    low = [c for c, m in enumerate(rows) if m.any() and
+           1.0 - float(np.mean([p[m].sum() for p in products])) / m.sum() < LOW_SHARE]
+    if not low:
+        return {}
+    rng = np.random.default_rng(seed + 1)
+    Js = blk.weighted_jacobians()
+    idx = [factor.rows(k, J.shape[2]) for k, J in zip(blk.keys, Js)]
+    mask = np.concatenate([np.repeat(rows[c][:, :, None], DRAWS, axis=2) for c in low], axis=2)
+    z = rng.standard_normal(mask.shape) * mask  # (K, m, DRAWS x len(low))
+    grad = np.zeros((factor.size, mask.shape[2]))
+    for i, J in zip(idx, Js):
+        _scatter_add(grad, i, np.matmul(J.transpose(0, 2, 1), z))
+    delta = solve_normal(factor, grad)
+    res = (z - sum(np.matmul(J, delta[i]) for i, J in zip(idx, Js))) * mask  # ((I - H) z) on the rows
+    t1 = np.einsum("kmd,kmd->d", z, res).reshape(len(low), DRAWS)
+    t2 = np.einsum("kmd,kmd->d", res, res).reshape(len(low), DRAWS)
+    return {c: (float(a.mean()), float(a.std(ddof=1) / np.sqrt(DRAWS)), float(b.mean()))
+            for c, a, b in zip(low, t1, t2)}
 
 
 def _posterior_mode(square_sum: float, redundancy: float) -> float:
