@@ -110,7 +110,8 @@ class GnssFactorSettings(_Factor):
 
     ``estimate_white_noise``: the white part's variance factor (horizontal, vertical) is
     estimated from the residuals after each solve (with at least 30 fixes), applied when
-    significantly above 1, and the gate decided on the estimated noise
+    significantly different from 1 (the white sigma at least ``min_sigma_mm``), and the gate
+    decided on the estimated noise
     (fusion/gnss_noise.py, docs/noise_estimation.md).
     """
 

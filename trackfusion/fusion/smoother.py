@@ -1101,7 +1101,7 @@ class _Gates:
         refit = False
         if st.estimate_white_noise:
             self.noise = gnss_noise.estimate_white_noise(blocks, white, self.white_factor, sol.tree,
-                                                         st.gate_chi2) or self.noise
+                                                         st.gate_chi2, st.min_sigma_mm * 1e-3) or self.noise
             if self.noise is not None and gnss_noise.needs_refit(self.white_factor, self.noise.applied):
                 self.white_factor, refit = self.noise.applied, True
         nis = gnss_noise.nis(blocks.residual, gnss_noise.scaled_white(white, self.white_factor))
