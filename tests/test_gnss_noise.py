@@ -1,6 +1,7 @@
 """GNSS white noise from the residuals (fusion/gnss_noise.py): the redundancy against its
-analytic value, and on a short open-track survey whose receiver states half its true white
-sigma (5 % outliers) the estimate, the gate and the result against the honest receiver's run."""
+analytic value, and on a short open-track survey whose receiver states half (and twice) its
+true white sigma (5 % outliers) the estimate, the gate and the result against the honest
+receiver's run."""
 
 import json
 
@@ -82,10 +83,12 @@ def _truly_outside(d, gate_chi2):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("gnss-noise")
-    honest, optimistic = _survey(root, 1.0), _survey(root, 0.5)
+    honest, optimistic, pessimistic = _survey(root, 1.0), _survey(root, 0.5), _survey(root, 2.0)
     return {"honest": (honest, *_run(honest, "out")), "honest_fixed": (honest, *_run(honest, "fixed", False)),
             "optimistic": (optimistic, *_run(optimistic, "out")),
-            "optimistic_fixed": (optimistic, *_run(optimistic, "fixed", False))}
+            "optimistic_fixed": (optimistic, *_run(optimistic, "fixed", False)),
+            "pessimistic": (pessimistic, *_run(pessimistic, "out")),
+            "pessimistic_fixed": (pessimistic, *_run(pessimistic, "fixed", False))}
 
 
 def test_honest_receiver_keeps_the_one_batch_answer(runs):
@@ -149,3 +152,32 @@ def test_the_same_estimate_with_exact_time_parts(runs):
     assert [r["index"] for r in mp["rejected_gnss"]] == [r["index"] for r in m["rejected_gnss"]]
     tab_p = read_csv_table(d / "parts" / "trajectory.csv")
     np.testing.assert_allclose(tab_p["u_m"], tab["u_m"], atol=1e-8)
+
+
+def test_pessimistic_receiver_weighted_up_on_the_estimate(runs):
+    """A receiver stating twice its true white sigma (the same draws as the honest survey): the
+    estimate (a quarter of the stated variance) is applied, the white sigma found within 15 % of
+    the drawn one, and the trajectory is the honest receiver's run's, far closer to it than the
+    run on the stated noise; its sigmas as consistent."""
+    d, m, tab, _ = runs["pessimistic"]
+    _, _, tab_fixed, _ = runs["pessimistic_fixed"]
+    hd, _, tab_h, _ = runs["honest"]
+    est = m["noise_estimates"]["gnss"]
+    ratio = np.asarray(est["estimated_white_sigma_mm"]) / np.array([8.0, 8.0, 15.0])
+    assert np.all(np.abs(ratio - 1) < 0.15), ratio
+    for g in ("horizontal", "vertical"):
+        assert est["variance_factor"][g] < 0.5  # the last solve's; it applied the one before
+        assert est["applied_variance_factor"][g] == pytest.approx(est["variance_factor"][g],
+                                                                  rel=gnss_noise.FACTOR_TOLERANCE)
+    outside, n = _truly_outside(d, 21.1)
+    assert len(m["rejected_gnss"]) <= 1.2 * outside + 0.01 * n, (len(m["rejected_gnss"]), outside)
+    off = {name: max(np.max(np.abs(t[c] - tab_h[c])) for c in ("e_m", "n_m", "u_m"))
+           for name, t in (("estimated", tab), ("stated", tab_fixed))}
+    # measured: 0.08 mm against 1.25 mm
+    assert off["estimated"] < 0.2 * off["stated"], off
+
+    def rms_z(directory, table):
+        err, _ = errors_against_truth(directory, table)
+        return np.sqrt(np.mean((err / np.column_stack([table[c] for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")]))
+                               ** 2, 0))
+    np.testing.assert_allclose(rms_z(d, tab), rms_z(hd, tab_h), rtol=0.05)
