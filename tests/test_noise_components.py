@@ -359,3 +359,20 @@ def test_low_share_noise_free_group_stays_at_its_floor():
                tree_factor(tree, ordering), {})
     for g in est.estimates["gnss_error"].values():
         assert g.factor == pytest.approx(nc.PRIOR_DOF / (nc.PRIOR_DOF + g.slope * g.redundancy), rel=1e-9)
+
+
+@pytest.mark.parametrize("fixed_point", [False, True])
+def test_next_factor_applies_a_significant_estimate_and_keeps_following_it(fixed_point):
+    """The datasheet (1) stays while an estimate is inside the gate; a significant one is applied
+    (the fixed point as it is, else a Newton step beyond it); an applied factor then follows its
+    estimates even when one lies inside the gate (no switching back to 1 between solves); a
+    floor group is never applied below 1."""
+    def est(f, sigma, applied):
+        return nc.GroupEstimate(f, sigma, applied, 200.0, 4000, 0.5, fixed_point)
+    assert nc._next_factor(est(0.74, 0.10, 1.0), floor=False) == 1.0  # 2.6 sigma: inside
+    applied = nc._next_factor(est(0.69, 0.09, 1.0), floor=False)  # 3.4 sigma: applied
+    assert applied == pytest.approx(0.69) if fixed_point else applied < 0.69
+    follows = nc._next_factor(est(0.74, 0.10, applied), floor=False)  # inside the gate, applied already
+    assert follows == (pytest.approx(0.74) if fixed_point else nc._newton_step(applied, 0.74, 0.5)) != 1.0
+    assert nc._next_factor(est(0.5, 0.01, 1.0), floor=True) == 1.0
+    assert nc._next_factor(est(2.0, 0.01, 1.0), floor=True) > 1.5

@@ -52,8 +52,9 @@ the floor keeps a noise-free survey's refits from running a factor to 0 (the mod
 ``exp(-r / PRIOR_DOF)``: the short noise-free open track's odometer to 0.0003, its GNSS
 correlated part to 0.0003). It is applied (the group's sigmas scaled by ``sqrt(f)``, the Huber
 weights and the gates then decided on the estimated noise) when it differs from 1 by more than
-:data:`SIGNIFICANCE` sigmas and by more than :data:`MIN_CHANGE`; the solve is repeated (at most
-:data:`MAX_REFITS` times) while an applied factor moves by more than :data:`MIN_CHANGE`.
+:data:`SIGNIFICANCE` sigmas and by more than :data:`MIN_CHANGE`, and once applied it follows
+its estimates (:func:`_next_factor`); the solve is repeated (at most :data:`MAX_REFITS` times)
+while an applied factor moves by more than :data:`MIN_CHANGE`.
 A correct datasheet therefore leaves the solve as it was. The groups of :data:`FLOOR_GROUPS`
 keep their configured sigma as a floor.
 
@@ -241,9 +242,7 @@ class NoiseComponents:
                 f0 = self.applied.get(name, {}).get(cname, 1.0)
                 g = _component_estimate(blk, products[name], rows[c], f0, own.get(c))
                 new[cname] = g
-                use = abs(g.factor - 1.0) > max(SIGNIFICANCE * g.sigma, MIN_CHANGE) and not (
-                    name in FLOOR_GROUPS and g.factor < 1.0)
-                target = (_rounded(g.factor) if g.fixed_point else _newton_step(f0, g.factor, g.slope)) if use else 1.0
+                target = _next_factor(g, floor=name in FLOOR_GROUPS)
                 if abs(target / f0 - 1.0) > MIN_CHANGE:
                     moved = True
                     # a new dict: the graph solved holds the old one (its last step stays its own)
@@ -255,6 +254,21 @@ class NoiseComponents:
         for name, comps in self.estimates.items():  # no new solve: what the last one used is applied
             self.applied[name] = {c: g.applied for c, g in comps.items()}
         return False
+
+
+def _next_factor(g: GroupEstimate, floor: bool) -> float:
+    """The factor the next solve applies from the estimate ``g`` of a solve that applied
+    ``g.applied``: 1 (the datasheet) unless the estimate is significant (module docstring) or a
+    factor is applied already; a ``floor`` group's (:data:`FLOOR_GROUPS`) never below 1. Once
+    applied, a factor follows its estimates and does not fall back to 1 when one of them lies
+    inside the gate: an estimate near the gate would otherwise switch it on and off between
+    solves (the hour of benchmarks/speed.py: the GNSS correlated part's 0.69 +- 0.09, applied;
+    then 0.74 +- 0.10, back to 1; then 0.69 again, until the refits ran out)."""
+    f0, f = g.applied, g.factor
+    significant = abs(f - 1.0) > max(SIGNIFICANCE * g.sigma, MIN_CHANGE)
+    if not (significant or f0 != 1.0) or (floor and f < 1.0):
+        return 1.0
+    return _rounded(f) if g.fixed_point else _newton_step(f0, f, g.slope)
 
 
 def _newton_step(f0: float, f: float, redundancy_share: float) -> float:
