@@ -326,11 +326,8 @@ def _own_draws(blk: fx.LinearBlocks, rows: list[np.ndarray], products: np.ndarra
     idx = [factor.rows(k, J.shape[2]) for k, J in zip(blk.keys, Js)]
     mask = np.concatenate([np.repeat(rows[c][:, :, None], DRAWS, axis=2) for c in low], axis=2)
     z = rng.standard_normal(mask.shape) * mask  # (K, m, DRAWS x len(low))
-    grad = np.zeros((factor.size, mask.shape[2]))
-    for i, J in zip(idx, Js):
-        _scatter_add(grad, i, np.matmul(J.transpose(0, 2, 1), z))
-    delta = solve_normal(factor, grad)
-    res = (z - sum(np.matmul(J, delta[i]) for i, J in zip(idx, Js))) * mask  # ((I - H) z) on the rows
+    delta = _normal_solution(factor, [(idx, Js, z)])
+    res = (z - _fitted(idx, Js, delta)) * mask  # ((I - H) z) on the rows
     t1 = np.einsum("kmd,kmd->d", z, res).reshape(len(low), DRAWS)
     t2 = np.einsum("kmd,kmd->d", res, res).reshape(len(low), DRAWS)
     return {c: (float(a.mean()), float(a.std(ddof=1) / np.sqrt(DRAWS)), float(b.mean()))
@@ -388,17 +385,25 @@ def _hat_products(graph_groups: list, blocks: dict[str, fx.LinearBlocks], factor
     names = [None] * len(graph_groups) + list(blocks)
     rows = [[factor.rows(k, J.shape[2]) for k, J in zip(keys, Js)] for keys, Js in slots]
     z = [rng.standard_normal(Js[0].shape[:2] + (DRAWS,)) for _, Js in slots]  # (K, m, D) per group
-    grad = np.zeros((factor.size, DRAWS))  # A^T z, per draw
-    for (_, Js), idx_slots, zg in zip(slots, rows, z):
+    delta = _normal_solution(factor, [(idx_slots, Js, zg) for (_, Js), idx_slots, zg in zip(slots, rows, z)])
+    return {n: np.moveaxis(zg * _fitted(idx_slots, Js, delta), 2, 0)
+            for n, (_, Js), idx_slots, zg in zip(names, slots, rows, z) if n in COMPONENTS}
+
+
+def _normal_solution(factor: TreeFactor, slots: list[tuple[list, list, np.ndarray]]) -> np.ndarray:
+    """``delta = (A^T A)^-1 A^T z`` (N, D) for D right-hand sides ``z`` on the rows of ``slots``
+    (each: its keys' rows in ``factor`` (K, d) per key, the weighted Jacobians (K, m, d) per key,
+    ``z`` (K, m, D)), with ``factor``'s Bayes tree: two triangular passes for all draws."""
+    grad = np.zeros((factor.size, slots[0][2].shape[2]))  # A^T z, per draw
+    for idx_slots, Js, z in slots:
         for idx, J in zip(idx_slots, Js):
-            _scatter_add(grad, idx, np.matmul(J.transpose(0, 2, 1), zg))
-    delta = solve_normal(factor, grad)
-    out = {}
-    for n, (_, Js), idx_slots, zg in zip(names, slots, rows, z):
-        if n in COMPONENTS:
-            hz = sum(np.matmul(J, delta[idx]) for idx, J in zip(idx_slots, Js))  # (K, m, D)
-            out[n] = np.moveaxis(zg * hz, 2, 0)
-    return out
+            _scatter_add(grad, idx, np.matmul(J.transpose(0, 2, 1), z))
+    return solve_normal(factor, grad)
+
+
+def _fitted(idx_slots: list, Js: list, delta: np.ndarray) -> np.ndarray:
+    """``A delta`` (K, m, D) on one slot's rows (:func:`_normal_solution`'s slot layout)."""
+    return sum(np.matmul(J, delta[idx]) for idx, J in zip(idx_slots, Js))
 
 
 def _scatter_add(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
