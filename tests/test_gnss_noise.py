@@ -181,3 +181,28 @@ def test_pessimistic_receiver_weighted_up_on_the_estimate(runs):
         return np.sqrt(np.mean((err / np.column_stack([table[c] for c in ("sigma_e_m", "sigma_n_m", "sigma_u_m")]))
                                ** 2, 0))
     np.testing.assert_allclose(rms_z(d, tab), rms_z(hd, tab_h), rtol=0.05)
+
+
+def test_applied_correlated_factor_scales_the_first_error_states_prior(tmp_path, monkeypatch):
+    """A variance factor applied to the GNSS correlated part scales the whole Gauss-Markov
+    process: its steps and the prior of the first error state (its stationary sigma). One pass of
+    the open track (14 min) with the correlated error drawn at 2.5 x the configured 8 / 15 mm:
+    the horizontal factor is applied, and the last graph's prior sigma is the configured one
+    times the square root of the factor applied, per component; the first graph's the configured."""
+    from trackfusion.fusion import smoother
+    d = tmp_path / "one-pass"
+    simulate_to_dir("open-track-gnss", d, seed=SEED,
+                    overrides=["motion.passes=1", "gnss.gm_sigma_h_mm=20", "gnss.gm_sigma_v_mm=40"])
+    priors = []
+    original = smoother._Builder._gnss_error_prior
+
+    def recording(self, first, values, corr, tau_s):
+        priors.append(np.array(corr))
+        return original(self, first, values, corr, tau_s)
+    monkeypatch.setattr(smoother._Builder, "_gnss_error_prior", recording)
+    res = P.run(P.load_pipeline(d / "pipeline.yaml"), d / "out")
+    applied = res.metrics["noise_estimates"]["gnss_error"]
+    f_h, f_v = applied["horizontal"]["applied_variance_factor"], applied["vertical"]["applied_variance_factor"]
+    assert f_h > 2.0
+    np.testing.assert_allclose(priors[-1] * 1e3, [8.0 * np.sqrt(f_h)] * 2 + [15.0 * np.sqrt(f_v)], rtol=1e-12)
+    np.testing.assert_allclose(priors[0] * 1e3, [8.0, 8.0, 15.0], rtol=1e-12)

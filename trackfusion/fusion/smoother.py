@@ -370,13 +370,15 @@ class _Builder:
         corr = np.array([st.correlated_sigma_h_mm] * 2 + [st.correlated_sigma_v_mm]) * 1e-3
         return white_covariance(g.cov_n[used] * st.covariance_scale, corr, st.min_sigma_mm * 1e-3)
 
-    def gnss(self, used: np.ndarray, values: gtsam.Values, white_factor: np.ndarray
-             ) -> Callable[["_State"], fx.LinearBlocks]:
+    def gnss(self, used: np.ndarray, values: gtsam.Values, white_factor: np.ndarray,
+             error_factor: np.ndarray | None = None) -> Callable[["_State"], fx.LinearBlocks]:
         """Factors of the used fixes (indices into the GNSS data), their stated white covariance
         scaled by ``white_factor`` (horizontal, vertical; fusion/gnss_noise.py); with a
         correlated-error model, one error state ``E(i)`` per used fix ``i`` (inserted into / kept
-        in ``values``) joined by first-order Gauss-Markov steps. Returns the builder of the
-        position factors (for gating)."""
+        in ``values``) joined by first-order Gauss-Markov steps. ``error_factor`` (3,): the
+        correlated part's variance factors applied (e, n, u; fusion/noise_components.py scales
+        the steps, and with them the process's stationary variance, which the first error state's
+        prior takes here). Returns the builder of the position factors (for gating)."""
         g, st = self.pb.gnss, self.pb.factors.gnss
         kk = nearest_sample(self.t, g.t_s[used])
         # move each fix to its keyframe's time along the initial velocity (< half an IMU interval)
@@ -398,15 +400,21 @@ class _Builder:
         self.builders.append(("gnss", build))
         self._count("gnss", used.size)
         if with_error:
-            self._gnss_error_states(used, values, corr, st.correlation_time_s)
+            process = corr * np.sqrt(error_factor) if error_factor is not None else corr
+            self._gnss_error_states(used, values, corr, st.correlation_time_s, process)
         return build
 
-    def _gnss_error_states(self, used: np.ndarray, values: gtsam.Values, corr: np.ndarray, tau_s: float) -> None:
+    def _gnss_error_states(self, used: np.ndarray, values: gtsam.Values, corr: np.ndarray, tau_s: float,
+                           process: np.ndarray) -> None:
+        """The error states of the used fixes, the Gauss-Markov steps between them (of the
+        configured sigma ``corr`` (3,) [m]: their variance factor is applied when the builders are
+        wrapped) and the prior of the first (the process's sigma ``process`` (3,) [m], the factor
+        applied)."""
         g = self.pb.gnss
         for i in used:
             if not values.exists(E(int(i))):
                 values.insert(E(int(i)), np.zeros(3))
-        self._gnss_error_prior(int(used[0]), values, corr, tau_s)
+        self._gnss_error_prior(int(used[0]), values, process, tau_s)
         phi = np.exp(-np.diff(g.t_s[used]) / tau_s)[:, None] * np.ones(3)
         sigma = np.maximum(corr * np.sqrt(1.0 - phi**2), 1e-9)
         keys_i, keys_j = E(0) + used[:-1], E(0) + used[1:]
@@ -1141,12 +1149,21 @@ def _round_graph(b: _Builder, base: tuple, values: gtsam.Values, gates: _Gates,
     Returns the graph and the builders of the GNSS and prism factors (None: none)."""
     b.restart(base)
     gates.solved_factor = gates.white_factor  # what this round's solve uses
-    gnss_build = b.gnss(gates.used, values, gates.white_factor) if gates.gnss is not None and gates.used.size else None
+    gnss_build = (b.gnss(gates.used, values, gates.white_factor, _gnss_error_factor(components))
+                  if gates.gnss is not None and gates.used.size else None)
     prism_build = b.prisms(gates.prism_used, values) if gates.prisms is not None else None
     if components is not None:  # the groups' estimated noise (fusion/noise_components.py)
         b.builders = components.wrap(b.builders, gates.labels())
         prism_build = dict(b.builders).get("prism", prism_build)
     return _Graph(b.g, b.builders, b.counts, gnss_build), gnss_build, prism_build
+
+
+def _gnss_error_factor(components: "nc.NoiseComponents | None") -> np.ndarray | None:
+    """The GNSS correlated part's variance factors applied (3,) (e, n, u), None: no estimation."""
+    if components is None:
+        return None
+    applied = components.applied.get("gnss_error", {})
+    return np.array([applied.get("horizontal", 1.0)] * 2 + [applied.get("vertical", 1.0)])
 
 
 def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, gates: _Gates,
