@@ -376,3 +376,50 @@ def test_next_factor_applies_a_significant_estimate_and_keeps_following_it(fixed
     assert follows == (pytest.approx(0.74) if fixed_point else nc._newton_step(applied, 0.74, 0.5)) != 1.0
     assert nc._next_factor(est(0.5, 0.01, 1.0), floor=True) == 1.0
     assert nc._next_factor(est(2.0, 0.01, 1.0), floor=True) > 1.5
+
+
+def _huber_observed_estimate(seed: int, states: int = 3000) -> nc.NoiseComponents:
+    """The low-share walk (true factor 1) observed by a vectorised Huber group (``k = 2`` on the
+    3-D norm, as the GNSS fixes): IRLS to convergence between the estimates."""
+    rng = np.random.default_rng(seed)
+    truth = np.cumsum(rng.normal(0.0, Q_LOW, (states, 3)), axis=0)
+    y = truth + rng.normal(0.0, SW_LOW, (states, 3))
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.PriorFactorVector(E(0), y[0], gtsam.noiseModel.Isotropic.Sigma(3, 100.0)))
+    keys = E(0) + np.arange(states)
+    eye = np.broadcast_to(np.eye(3), (states, 3, 3))
+
+    def steps(state) -> fx.LinearBlocks:
+        return fx.LinearBlocks([keys[:-1], keys[1:]], [-eye[1:], eye[1:]], state[1:] - state[:-1],
+                               np.full((states - 1, 3), Q_LOW), None)
+
+    def fixes(state) -> fx.LinearBlocks:
+        return fx.LinearBlocks([keys], [eye], state - y, np.full((states, 3), SW_LOW), 2.0)
+    values = gtsam.Values()
+    for i in range(states):
+        values.insert(E(i), y[i])
+    est = nc.NoiseComponents()
+    for _ in range(6):
+        builders = est.wrap([("gnss", fixes), ("gnss_error", steps)], {})
+        for _ in range(6):  # IRLS
+            values, tree, gfg, ordering = _solve(graph, builders, values)
+        if not est.update(builders, gtsam.utilities.extractVectors(values, "e"), gfg, graph.size(),
+                          tree_factor(tree, ordering), {}):
+            break
+    return est
+
+
+def test_low_share_estimate_with_huber_weighted_neighbours(monkeypatch):
+    """The other rows' share ``r - t`` assumes unit variance in the weighted system; Huber
+    weights (``k = 2`` on a 3-D norm: 26 % of Gaussian fixes weighted down) keep only ``rho`` =
+    0.88 of it, and the fixed point read the walk low. Over 8 draws at the true factor 1 the
+    normalised errors average -0.19 with the correction (without Huber weights: +0.12) and
+    -1.05 without it (the 44 min open track, seed 1, every other noise configured true: the GNSS
+    correlated sigma 0.96 / 0.94 of the error series' own fit h / v without it, 1.01 / 1.00 with it)."""
+    def z_of(estimates):
+        return np.array([(g.factor - 1.0) / g.sigma for est in estimates for g in est.estimates["gnss_error"].values()])
+    corrected = z_of(_huber_observed_estimate(seed) for seed in range(8))
+    monkeypatch.setattr(nc, "robust_rows", lambda blocks, name, factor: [])
+    plain = z_of(_huber_observed_estimate(seed) for seed in range(8))
+    assert abs(corrected.mean()) < 0.4 and 0.6 < np.sqrt(np.mean(corrected**2)) < 1.5
+    assert plain.mean() < corrected.mean() - 0.5
