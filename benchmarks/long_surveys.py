@@ -128,8 +128,10 @@ def main() -> None:
         new = {(r["seed"], r["passes"], r["run"]) for r in rows}
         kept = [r for r in (dict(r, run=r.get("run", "default")) for r in json.loads(args.out.read_text())["runs"])
                 if (r["seed"], r["passes"], r["run"]) not in new]
-        for r in kept:  # their join figures again, as this script computes them now
-            with_joins(r, simulated(r["seed"], r["passes"]))
+        for r in kept:  # their join figures again, as this script computes them now (when their output is still there)
+            sim = simulated(r["seed"], r["passes"])
+            if (sim / _out_dir(r["run"] == "one batch") / "trajectory.csv").is_file():
+                with_joins(r, sim)
         rows = sorted(kept + rows, key=lambda r: (r["passes"], r["run"] != "default", r["seed"]))
     summary = {}
     for label in dict.fromkeys(_label(r) for r in rows):
