@@ -419,7 +419,7 @@ def test_low_share_estimate_with_huber_weighted_neighbours(monkeypatch):
     def z_of(estimates):
         return np.array([(g.factor - 1.0) / g.sigma for est in estimates for g in est.estimates["gnss_error"].values()])
     corrected = z_of(_huber_observed_estimate(seed) for seed in range(8))
-    monkeypatch.setattr(nc, "robust_rows", lambda blocks, name, factor: [])
+    monkeypatch.setattr(nc, "robust_rows", lambda blocks, name, weighted: [])
     plain = z_of(_huber_observed_estimate(seed) for seed in range(8))
     assert abs(corrected.mean()) < 0.4 and 0.6 < np.sqrt(np.mean(corrected**2)) < 1.5
     assert plain.mean() < corrected.mean() - 0.5

@@ -240,7 +240,8 @@ class NoiseComponents:
         if not any(n in COMPONENTS for n, _ in builders):
             return False
         blocks = {n: b(state) for n, b in builders}
-        products = _hat_products(_graph_groups(gfg, graph_factors), blocks, factor, self.seed)
+        weighted = _weighted_slots(blocks, factor)
+        products = _hat_products(_graph_groups(gfg, graph_factors), weighted, factor, self.seed)
         moved = False
         for name, blk in blocks.items():
             if name not in COMPONENTS:
@@ -249,7 +250,7 @@ class NoiseComponents:
             inlier = _inliers(blk, idx, len(comp), products[name].mean(axis=0), self.quanta_m.get(name, 0.0)) \
                 if blk.huber_k is not None else np.ones(blk.residual.shape[0], bool)  # module docstring: outliers
             rows = [(idx == c) & inlier[:, None] for c in range(len(comp))]
-            own = _own_draws(blk, rows, products[name], factor, self.seed, robust_rows(blocks, name, factor))
+            own = _own_draws(name, blocks, weighted, rows, products[name], factor, self.seed)
             new = {}
             for c, cname in enumerate(comp):
                 f0 = self.applied.get(name, {}).get(cname, 1.0)
@@ -303,7 +304,7 @@ def _rounded(f: float) -> float:
 
 
 def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.ndarray, f0: float,
-                        own: tuple[float, float, float] | None = None) -> GroupEstimate:
+                        own: tuple[float, float, float, float] | None = None) -> GroupEstimate:
     """The estimate (module docstring) of the component whose residual rows are ``rows`` (K, m)
     bool, from the draws' row products ``z (H z)`` (D, K, m) and the factor ``f0`` applied; a
     low-share component's ``own`` draws (:func:`_own_draws`: ``r``, its Monte Carlo error, ``t``,
@@ -323,30 +324,32 @@ def _component_estimate(blk: fx.LinearBlocks, products: np.ndarray, rows: np.nda
     return GroupEstimate(f, sigma, f0, r, n, r / max(n, 1))
 
 
-def _own_draws(blk: fx.LinearBlocks, rows: list[np.ndarray], products: np.ndarray, factor: TreeFactor,
-               seed: int, robust: list[tuple[list, list, float]] | None = None
+def _own_draws(name: str, blocks: dict[str, fx.LinearBlocks], weighted: dict[str, tuple[list, list]],
+               rows: list[np.ndarray], products: np.ndarray, factor: TreeFactor, seed: int
                ) -> dict[int, tuple[float, float, float, float]]:
-    """Per component ``c`` of ``rows`` (each (K, m) bool) whose redundancy share from the
-    shared draws ``products`` (D, K, m) is below :data:`LOW_SHARE`: its redundancy
+    """Per component ``c`` of group ``name``'s ``rows`` (each (K, m) bool) whose redundancy share
+    from the shared draws ``products`` (D, K, m) is below :data:`LOW_SHARE`: its redundancy
     ``r = tr((I - H)_gg)``, that estimate's Monte Carlo error, ``t = tr((I - H)_gg^2)``, from
     :data:`DRAWS` right-hand sides ``z`` on its own rows only (``E[z^T (I - H) z]`` and
-    ``E[|((I - H) z)_g|^2]``), and what the Huber-weighted groups ``robust`` (:func:`robust_rows`:
-    each one's row indices, weighted Jacobians and the variance its weights take off, ``1 - rho``)
-    take off the other rows' ``r - t``: ``E[|(H x)_g|^2]`` over as many draws ``x ~ N(0, 1 - rho)``
-    on their rows (module docstring, "Robust rows"). One pair of triangular passes for all."""
+    ``E[|((I - H) z)_g|^2]``), and what the other Huber-weighted groups of ``blocks``
+    (:func:`robust_rows`: each one's slot of ``weighted`` and the variance its weights take off,
+    ``1 - rho``) take off the other rows' ``r - t``: ``E[|(H x)_g|^2]`` over as many draws
+    ``x ~ N(0, 1 - rho)`` on their rows (module docstring, "Robust rows"). ``weighted``: every
+    group's rows in ``factor`` and weighted Jacobians (:func:`_weighted_slots`). One pair of
+    triangular passes for all."""
     low = [c for c, m in enumerate(rows) if m.any() and
            1.0 - float(np.mean([p[m].sum() for p in products])) / m.sum() < LOW_SHARE]
     if not low:
         return {}
+    robust = robust_rows(blocks, name, weighted)
     rng = np.random.default_rng(seed + 1)
-    Js = blk.weighted_jacobians()
-    idx = [factor.rows(k, J.shape[2]) for k, J in zip(blk.keys, Js)]
+    idx, Js = weighted[name]
     own = len(low) * DRAWS
     mask = np.concatenate([np.repeat(rows[c][:, :, None], DRAWS, axis=2) for c in low], axis=2)
     z = np.zeros(mask.shape[:2] + (own + (DRAWS if robust else 0),))
     z[:, :, :own] = rng.standard_normal(mask.shape) * mask  # (K, m, DRAWS x len(low))
     slots = [(idx, Js, z)]
-    for rows_idx, rJs, taken in robust or []:
+    for rows_idx, rJs, taken in robust:
         zr = np.zeros(rJs[0].shape[:2] + (z.shape[2],))
         zr[:, :, own:] = np.sqrt(taken) * rng.standard_normal(rJs[0].shape[:2] + (DRAWS,))
         slots.append((rows_idx, rJs, zr))
@@ -360,11 +363,12 @@ def _own_draws(blk: fx.LinearBlocks, rows: list[np.ndarray], products: np.ndarra
             for c, a, b, off in zip(low, t1, t2, taken_off)}
 
 
-def robust_rows(blocks: dict[str, fx.LinearBlocks], name: str, factor: TreeFactor) -> list[tuple[list, list, float]]:
+def robust_rows(blocks: dict[str, fx.LinearBlocks], name: str, weighted: dict[str, tuple[list, list]]
+                ) -> list[tuple[list, list, float]]:
     """The Huber-weighted groups of ``blocks`` other than ``name`` whose weights take variance
-    off (module docstring, "Robust rows"), as :func:`_own_draws` takes them: per group, its keys'
-    rows in ``factor``, its weighted Jacobians and ``1 - rho``, ``rho = sum(w e^2) / sum(e^2)``
-    the share of its whitened residuals' square sum its Huber weights ``w`` keep."""
+    off (module docstring, "Robust rows"), as :func:`_own_draws` takes them: per group, its rows
+    and weighted Jacobians (its slot of ``weighted``) and ``1 - rho``, ``rho = sum(w e^2) /
+    sum(e^2)`` the share of its whitened residuals' square sum its Huber weights ``w`` keep."""
     out = []
     for other, blk in blocks.items():
         if other == name or blk.huber_k is None or blk.residual.size == 0:
@@ -372,8 +376,18 @@ def robust_rows(blocks: dict[str, fx.LinearBlocks], name: str, factor: TreeFacto
         e2 = np.sum(blk.whitened() ** 2, axis=1)
         rho = float(np.sum(blk.weights() * e2) / max(float(e2.sum()), 1e-300))
         if rho < 1.0:
-            Js = blk.weighted_jacobians()
-            out.append(([factor.rows(k, J.shape[2]) for k, J in zip(blk.keys, Js)], Js, 1.0 - rho))
+            out.append((*weighted[other], 1.0 - rho))
+    return out
+
+
+def _weighted_slots(blocks: dict[str, fx.LinearBlocks], factor: TreeFactor) -> dict[str, tuple[list, list]]:
+    """Per vectorised group: its keys' rows in ``factor`` (K, d) and its whitened, Huber-weighted
+    Jacobians (K, m, d), per key slot; made once per estimate for the hat products and the own
+    draws."""
+    out = {}
+    for name, blk in blocks.items():
+        Js = blk.weighted_jacobians()
+        out[name] = ([factor.rows(k, J.shape[2]) for k, J in zip(blk.keys, Js)], Js)
     return out
 
 
@@ -415,22 +429,23 @@ def _inliers(blk: fx.LinearBlocks, idx: np.ndarray, n_comp: int, hat: np.ndarray
     return inside
 
 
-def _hat_products(graph_groups: list, blocks: dict[str, fx.LinearBlocks], factor: TreeFactor,
+def _hat_products(graph_groups: list, weighted: dict[str, tuple[list, list]], factor: TreeFactor,
                   seed: int) -> dict[str, np.ndarray]:
     """Per estimated group, the row products ``z * (H z)`` (D, K, m) of :data:`DRAWS` random
     right-hand sides (module docstring: their sum over a component's rows is the Hutchinson
-    estimate of its ``tr(H)``, their mean per row of ``H``'s diagonal). ``blocks``: every
-    vectorised factor group at the solution; ``graph_groups``: the other factors' whitened
-    blocks (:func:`_graph_groups`); ``factor``: the solve's Bayes tree (fusion/normal_solve.py),
-    with which ``H z = A (A^T A)^-1 A^T z`` costs two triangular passes for all draws at once."""
+    estimate of its ``tr(H)``, their mean per row of ``H``'s diagonal). ``weighted``: every
+    vectorised factor group's rows and weighted Jacobians at the solution (:func:`_weighted_slots`);
+    ``graph_groups``: the other factors' whitened blocks (:func:`_graph_groups`); ``factor``: the
+    solve's Bayes tree (fusion/normal_solve.py), with which ``H z = A (A^T A)^-1 A^T z`` costs two
+    triangular passes for all draws at once."""
     rng = np.random.default_rng(seed)
-    slots = graph_groups + [(blk.keys, blk.weighted_jacobians()) for blk in blocks.values()]  # (keys, J) per slot
-    names = [None] * len(graph_groups) + list(blocks)
-    rows = [[factor.rows(k, J.shape[2]) for k, J in zip(keys, Js)] for keys, Js in slots]
+    graph_slots = [([factor.rows(k, J.shape[2]) for k, J in zip(keys, Js)], Js) for keys, Js in graph_groups]
+    slots = graph_slots + list(weighted.values())  # (rows, J) per slot
+    names = [None] * len(graph_groups) + list(weighted)
     z = [rng.standard_normal(Js[0].shape[:2] + (DRAWS,)) for _, Js in slots]  # (K, m, D) per group
-    delta = _normal_solution(factor, [(idx_slots, Js, zg) for (_, Js), idx_slots, zg in zip(slots, rows, z)])
+    delta = _normal_solution(factor, [(idx_slots, Js, zg) for (idx_slots, Js), zg in zip(slots, z)])
     return {n: np.moveaxis(zg * _fitted(idx_slots, Js, delta), 2, 0)
-            for n, (_, Js), idx_slots, zg in zip(names, slots, rows, z) if n in COMPONENTS}
+            for n, (idx_slots, Js), zg in zip(names, slots, z) if n in COMPONENTS}
 
 
 def _normal_solution(factor: TreeFactor, slots: list[tuple[list, list, np.ndarray]]) -> np.ndarray:
