@@ -59,14 +59,12 @@ def oracle_sigma_mm(y_mm: np.ndarray, t_s: np.ndarray, white_mm: float, tau_s: f
 def drawn_series(d: Path) -> tuple[np.ndarray, np.ndarray]:
     """The kept fixes' times (K,) [s] and drawn error (K, 3) [mm] of the survey in ``d``, outliers
     removed (their drawn offsets)."""
+    from trackfusion.simulation.aiding import GnssSpec
     truth = json.loads((d / "truth.json").read_text())
-    errors = truth["errors"]
-    gnss = (eval(errors) if isinstance(errors, str) else errors)["gnss"]  # noqa: S307 (our own truth.json)
+    gnss = truth["errors"]["gnss"]
     err = np.array(gnss["error_n_m"]) * 1e3
-    from trackfusion.simulation.config import ScenarioConfig
-    cfg = ScenarioConfig.model_validate(truth["config"])
-    rate = float(cfg.gnss.get("rate_hz", 1.0))
-    t = np.arange(err.shape[0]) / rate  # the open track has no outage: the kept fixes are every epoch
+    spec = GnssSpec(**{k: v for k, v in truth["config"]["gnss"].items() if k != "lever_arm_b_m"})
+    t = np.arange(err.shape[0]) / spec.rate_hz  # the open track has no outage: the kept fixes are every epoch
     offsets = np.array(gnss["outlier_offsets_n_m"]).reshape(-1, 3) * 1e3
     outlier = np.zeros(err.shape[0], bool)
     for off in offsets:
