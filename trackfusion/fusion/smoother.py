@@ -1163,7 +1163,7 @@ def _gnss_error_factor(components: "nc.NoiseComponents | None") -> np.ndarray | 
     if components is None:
         return None
     applied = components.applied.get("gnss_error", {})
-    return np.array([applied.get("horizontal", 1.0)] * 2 + [applied.get("vertical", 1.0)])
+    return np.array([applied.get(c, 1.0) for c in nc.COMPONENTS["gnss_error"]])  # the rows' components
 
 
 def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, gates: _Gates,
