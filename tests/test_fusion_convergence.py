@@ -44,6 +44,18 @@ def test_two_steps_enough_from_a_converged_start():
     assert _history([1.0, 1e-3, 1e-4], warm=True).remaining_m() == pytest.approx(1e-4 * 0.1 / 0.9)
 
 
+def test_a_gating_round_trusts_the_first_two_steps():
+    """A gating round's estimate only decides the gate (smoother.StopRule.gating): the first two
+    steps' ratio counts, as a warm start's does; the round that goes on from it does not."""
+    h = _history([8.5e-3, 2.8e-4])  # bridge seed 1's first round: 8.5 mm, then 0.28 mm
+    tail = 2.8e-4 * (2.8e-4 / 8.5e-3) / (1 - 2.8e-4 / 8.5e-3)
+    assert h.remaining_m(first_ratio=True) == pytest.approx(tail)
+    assert h.converged(2e-5, first_ratio=True) and not h.converged(2e-5)
+    assert h.remaining_m() == np.inf and h.copy().remaining_m() == np.inf  # what the last round's convergence sees
+    assert _history([1.0, 0.6]).remaining_m(first_ratio=True) == np.inf  # rho above RHO_MAX
+    assert _history([1.0]).remaining_m(first_ratio=True) == np.inf
+
+
 def test_default_tolerance():
     from trackfusion.fusion.settings import SmootherSettings
     assert SmootherSettings().step_tolerance_mm == C.DEFAULT_STEP_TOLERANCE_MM

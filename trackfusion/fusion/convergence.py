@@ -15,7 +15,10 @@ the coarse initial estimate, metres) never makes the second look converged: the 
 three accepted steps, and claims nothing while ``rho`` is above :data:`RHO_MAX`. A solve that
 starts at the converged estimate of the same graph with other noise weights (a noise refit
 round, ``warm``) has no coarse first step: its first step is the weights' linear response, and
-the ratio of its two steps already measures ``rho`` (two steps are enough).
+the ratio of its two steps already measures ``rho`` (two steps are enough). Nor does a gating
+round (``StopRule.gating`` in fusion/smoother.py) wait for a third step: its estimate only decides
+the gate and the noise estimate, and the round after it (or the last round's convergence, which
+carries its steps on and needs three) goes on from it, so the final estimate meets the same rule.
 """
 
 from __future__ import annotations
@@ -43,11 +46,12 @@ class StepHistory:
         """Record one accepted step between keyframe positions (K,3) [m]."""
         self.steps_m.append(float(np.max(np.abs(pos_after_n - pos_before_n))) if pos_after_n.size else 0.0)
 
-    def remaining_m(self) -> float:
+    def remaining_m(self, first_ratio: bool = False) -> float:
         """Predicted correction still to come [m] (the geometric tail), inf when it cannot be
-        estimated (fewer than three steps, two when :attr:`warm`, or a step ratio above
-        :data:`RHO_MAX`)."""
-        if len(self.steps_m) < (2 if self.warm else 3):
+        estimated (fewer than three steps, two when :attr:`warm` or ``first_ratio``, or a step
+        ratio above :data:`RHO_MAX`). ``first_ratio``: the ratio of the first two steps of a cold
+        start is trusted too (a gating round's, see :class:`~.smoother.StopRule`)."""
+        if len(self.steps_m) < (2 if self.warm or first_ratio else 3):
             return np.inf
         last = self.steps_m[-3:]
         if last[-1] == 0.0:
@@ -57,9 +61,10 @@ class StepHistory:
         rho = max(b / a for a, b in zip(last[:-1], last[1:]))
         return last[-1] * rho / (1.0 - rho) if rho < RHO_MAX else np.inf
 
-    def converged(self, tolerance_m: float) -> bool:
-        """True when the predicted remaining correction is below ``tolerance_m`` (> 0)."""
-        return tolerance_m > 0.0 and self.remaining_m() < tolerance_m
+    def converged(self, tolerance_m: float, first_ratio: bool = False) -> bool:
+        """True when the predicted remaining correction (:meth:`remaining_m`) is below
+        ``tolerance_m`` (> 0)."""
+        return tolerance_m > 0.0 and self.remaining_m(first_ratio) < tolerance_m
 
     def copy(self) -> "StepHistory":
         return StepHistory(list(self.steps_m), self.warm)

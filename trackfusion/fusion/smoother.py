@@ -689,11 +689,14 @@ class _Solved:
 class StopRule:
     """When :func:`gauss_newton` stops: after ``max_iterations``, when the cost falls by less than
     ``rtol`` (relative), or when the predicted remaining correction is below ``step_tol_m`` [m]
-    (0: off; fusion/convergence.py)."""
+    (0: off; fusion/convergence.py). ``gating``: a gating round's, whose estimate only decides the
+    gate and the noise estimate, the next round or the last one's convergence (:func:`_solve_in_rounds`)
+    going on from it: the first two steps' ratio already predicts the correction to come."""
 
     max_iterations: int
     rtol: float
     step_tol_m: float = 0.0
+    gating: bool = False
 
 
 @dataclass(frozen=True)
@@ -751,7 +754,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRu
         history.add(state.p, new_state.p)
         values, cost, state, blocks = new, new_cost, new_state, new_blocks
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
-        if decrease < stop.rtol or history.converged(stop.step_tol_m):
+        if decrease < stop.rtol or history.converged(stop.step_tol_m, stop.gating):
             break
     return _Solved(values, state, it, cost0, cost, tree, ordering, history, gfg)
 
@@ -1177,7 +1180,7 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
     stop = StopRule(sm.max_iterations, sm.relative_tolerance, sm.step_tolerance_mm * 1e-3)  # step: m; 0: off
     # a gating round need not converge to the last digit before its gate: the tolerance is
     # tightened once the gate rejects nothing more (below)
-    round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE)) if gates.gating else stop
+    round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE), gating=True) if gates.gating else stop
     iterations, cost0, reweighted = 0, None, False
     for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         G, gnss_build, prism_build = _round_graph(b, base, values, gates, components)
