@@ -118,6 +118,27 @@ def test_step_rule_gives_the_cost_criterions_solution_in_fewer_iterations(bridge
 
 
 
+def test_gating_round_stops_after_two_steps_with_the_same_answer(bridge_run, monkeypatch):
+    """smoother.StopRule.gating: a gating round trusts its first two steps' ratio; the last
+    round's convergence still needs three, so the answer is the one the three-step rule gives."""
+    from trackfusion import pipeline as P
+    from trackfusion.fusion import convergence, smoother
+    d, _ = bridge_run
+    pl = P.load_pipeline(d / "pipeline.yaml")
+    log, _ = P._read(pl)
+    problem = P._prepare_total_stations(pl, log, P.build_problem(pl, log, lambda _m: None)[0], lambda _m: None)[0]
+    fast = smoother.smooth(problem)
+    three_steps = convergence.StepHistory.remaining_m
+    monkeypatch.setattr(convergence.StepHistory, "remaining_m", lambda self, first_ratio=False: three_steps(self))
+    full = smoother.smooth(problem)
+    assert fast.iterations < full.iterations
+    assert np.abs(fast.pos_n - full.pos_n).max() < 1e-6  # [m]: within 1 um
+    q = fast.station_states - full.station_states  # (rotation [rad], translation [m], clock [s], drift [ppm])
+    assert np.abs(q[:, :3]).max() < 0.001 / 206265 and np.abs(q[:, 3:6]).max() < 1e-6
+    assert np.abs(q[:, 6]).max() < 1e-6 and np.abs(q[:, 7]).max() < 1e-3  # 0.05 % of the 2 ms clock target
+    np.testing.assert_allclose(fast.sigma_pos_n_m, full.sigma_pos_n_m, rtol=1e-4)
+
+
 def test_stations_prepared_in_a_forked_child_while_preintegrating(bridge_run, monkeypatch):
     """pipeline._prepare_and_preintegrate: the survey prepared in a forked child equals the one
     prepared here, bit for bit, and the preintegration done meanwhile equals the smoother's own;
