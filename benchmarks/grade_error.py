@@ -20,7 +20,10 @@ Per seed:
   ``sigma_v`` + Gauss-Markov ``gm_sigma_v (+) ppm baseline`` with ``gm_tau_s``), i.e. how well the
   fixes alone tell the grade (the bias then tells nothing more: a level IMU that never turns
   cannot separate its along-track bias from pitch), and the grade the drawn errors of the fixes imply
-  (the same least squares applied to them).
+  (the same least squares applied to them);
+* with ``--posterior``: the smoother's own posterior sigma of that bias [ug] (the marginal of the
+  middle bias segment in the solve's Bayes tree, the scenario's pipeline.yaml solved again as
+  ``benchmarks/accuracy.py``'s default variant ran it) and the bias error over it.
 Writes benchmarks/results/grade_error.json (or ``--out``).
 """
 
@@ -93,7 +96,34 @@ def gnss_grade(folder: Path, truth: dict) -> tuple[float, float]:
     return float(np.sqrt(cov[1, 1]) * 1e6), float(implied[1] * 1e6)
 
 
-def seed_figures(seed: int, label: str) -> dict:
+def posterior_along_bias_sigma_ug(folder: Path) -> float:
+    """The smoother's posterior sigma [ug] of the x accelerometer bias of the middle bias segment:
+    ``folder``'s pipeline.yaml read, built and smoothed as ``trackfusion run`` does, the marginal
+    taken from the solve's last Bayes tree (the whole run's: exact to about 1 % on an hour,
+    docs/solver_speed.md, enough for a sigma)."""
+    import gtsam
+    from trackfusion import pipeline as P
+    from trackfusion.fusion import smoother
+    pl = P.load_pipeline(folder / "pipeline.yaml")
+    log, _ = P._read(pl)
+    problem, _ = P.build_problem(pl, log, lambda _m: None)
+    sigma: list[float] = []
+    marginals = smoother._marginals
+
+    def capture(problem, rounds, *args, **kwargs):
+        b = sorted(gtsam.Symbol(k).index() for k in rounds.sol.values.keys() if gtsam.Symbol(k).chr() == ord("b"))
+        cov = rounds.sol.tree.marginalCovariance(gtsam.symbol("b", b[len(b) // 2]))  # (accel, gyro)
+        sigma.append(float(np.sqrt(cov[0, 0]) / (G0_MPS2 * 1e-6)))
+        return marginals(problem, rounds, *args, **kwargs)
+    smoother._marginals = capture
+    try:
+        smoother.smooth(problem)
+    finally:
+        smoother._marginals = marginals
+    return sigma[0]
+
+
+def seed_figures(seed: int, label: str, posterior: bool = False) -> dict:
     folder = CACHE / f"open-track-gnss-{seed}"
     truth = json.loads((folder / "truth.json").read_text())
     metrics = json.loads((folder / label / "metrics.json").read_text())
@@ -109,6 +139,9 @@ def seed_figures(seed: int, label: str) -> dict:
            "along_bias_effective_ug": true_bias, "along_bias_estimated_ug": est_bias,
            "along_bias_error_ug": est_bias - true_bias}
     row["gnss_grade_bound_urad"], row["gnss_implied_grade_urad"] = gnss_grade(folder, truth)
+    if posterior:
+        row["along_bias_posterior_sigma_ug"] = posterior_along_bias_sigma_ug(folder)
+        row["along_bias_error_over_sigma"] = row["along_bias_error_ug"] / row["along_bias_posterior_sigma_ug"]
     return row
 
 
@@ -118,8 +151,10 @@ def main() -> None:
     ap.add_argument("--label", default="out-default(-wheelpath)", help="run folder in each simulation")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--made-by", default="this checkout", help="the code that made the runs (for the JSON)")
+    ap.add_argument("--posterior", action="store_true",
+                    help="also solve each survey again for the bias's posterior sigma (about 20 s a seed)")
     args = ap.parse_args()
-    rows = [seed_figures(s, args.label) for s in args.seeds]
+    rows = [seed_figures(s, args.label, args.posterior) for s in args.seeds]
     for r in rows:
         print(f"seed {r['seed']:3d}: grade error {r['grade_error_urad']:+6.1f} urad; 5 m vertical ADEV "
               f"{r['vertical_adev_5m_mm']:.3f} mm, without the grade {r['vertical_adev_5m_without_grade_mm']:.3f} mm; "
@@ -128,6 +163,11 @@ def main() -> None:
     rms = {k: float(np.sqrt(np.mean([r[k] ** 2 for r in rows])))
            for k in ("grade_error_urad", "vertical_adev_5m_mm", "vertical_adev_5m_without_grade_mm",
                      "along_bias_effective_ug", "along_bias_error_ug")}
+    if args.posterior:
+        z = [r["along_bias_error_over_sigma"] for r in rows]
+        rms["along_bias_error_over_sigma"] = float(np.sqrt(np.mean(np.square(z))))
+        print("along-track bias posterior sigma " + " / ".join(f"{r['along_bias_posterior_sigma_ug']:.2f}" for r in rows)
+              + f" ug; RMS(error / sigma) {rms['along_bias_error_over_sigma']:.2f}")
     grades = [r["grade_error_urad"] for r in rows]
     corr = float(np.corrcoef(grades, [r["along_bias_error_ug"] for r in rows])[0, 1])
     corr_gnss = float(np.corrcoef(grades, [r["gnss_implied_grade_urad"] for r in rows])[0, 1])
