@@ -171,5 +171,5 @@ def test_a_failed_forked_writer_leaves_nothing_and_exits_2_with_one_line(tiny, t
     errors = [line for line in err if ": error: " in line]
     assert errors == [err[-1]] and err[-1].startswith("trackfusion run: error: ") and "Traceback" not in "".join(err)
     assert err[-1].endswith("fused.mcap: no space left on device" if failure == "error"
-                            else "fused.mcap and the report figures: the forked child process died (exit code 9)")
+                            else "writing fused.mcap: the forked child process died (exit code 9)")
     assert not out.exists() and list(tmp_path.iterdir()) == []  # nor a staging folder

@@ -174,6 +174,21 @@ def test_a_copy_on_the_absolute_clock_moves_only_the_times(tmp_path, compression
         assert {m.publish_time for _s, _c, m in make_reader(fh).iter_messages()} == {offset}
 
 
+def test_a_moved_copy_is_the_same_bytes_whatever_the_threads_window(tmp_path, monkeypatch):
+    """The chunks are shifted a window at a time on two threads (sensors/mcap_log.py
+    ``_shifted_records``): the file is the same bytes for one chunk at a time and for all at once."""
+    from trackfusion.sensors import mcap_log
+    _foreign(tmp_path / "raw.mcap", CompressionType.ZSTD, chunked=True)
+    log = read_log(tmp_path / "raw.mcap")
+    assert sum(op == mcap_log._CHUNK for op, _, _ in log.source.records) > 3 * mcap_log.SHIFT_WINDOW_CHUNKS
+    copies = []
+    for window in (1, mcap_log.SHIFT_WINDOW_CHUNKS, 10**6):
+        monkeypatch.setattr(mcap_log, "SHIFT_WINDOW_CHUNKS", window)
+        copy_log(tmp_path / f"moved{window}.mcap", log.source, time_offset_ns=10**18)
+        copies.append((tmp_path / f"moved{window}.mcap").read_bytes())
+    assert copies[0] == copies[1] == copies[2]
+
+
 def test_our_log_copied_on_the_absolute_clock(tmp_path):
     write_log(tmp_path / "raw.mcap", small_log(3000))
     log = read_log(tmp_path / "raw.mcap")

@@ -849,7 +849,7 @@ class OutputSources:
     ``raw``: the input log as read, whose topics fused.mcap carries; ``fused_table``: the
     trajectory rows fused.mcap shows when not ``table`` (a long run's rows at
     :data:`FUSED_POSE_RATE_HZ`); ``early``: the forked task already writing geometry.csv and
-    fused.mcap and drawing the table figures (:func:`~trackfusion.report.outputs.start_table_outputs`);
+    drawing the table figures, fused.mcap in another (:func:`~trackfusion.report.outputs.start_table_outputs`);
     ``background``: the run's forked tasks, all waited for (and their failures raised) before
     the files are listed."""
 

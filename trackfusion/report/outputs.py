@@ -26,14 +26,26 @@ def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, 
     ``cfg.outputs.fused_mcap``: the rows of ``table`` at ``fused_pose_rate_hz``, the rails, the raw
     log ``raw``) into ``stage``; with ``draw`` (and ``cfg.outputs.report``) returns the report's
     figures of ``table`` and the geometry (:func:`~trackfusion.report.html.table_images`), else {}."""
+    write_fused(stage, table, origin, cfg, geometry, raw, fused_pose_rate_hz)
+    return write_geometry_and_figures(stage, table, origin, cfg, geometry, draw)
+
+
+def write_fused(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None, raw=None,
+                fused_pose_rate_hz: float = 10.0) -> None:
+    """``fused.mcap`` of :func:`write_table_outputs` (nothing when ``cfg.outputs.fused_mcap`` is off)."""
+    if cfg.outputs.fused_mcap:
+        from ..sensors.fused import write_fused_mcap
+        write_fused_mcap(stage / "fused.mcap", table, origin, max_rate_hz=fused_pose_rate_hz, raw=raw,
+                         geometry=geometry.table if geometry is not None else None)
+
+
+def write_geometry_and_figures(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None,
+                               draw: bool = False) -> dict[str, str]:
+    """``geometry.csv`` and the figures of :func:`write_table_outputs`."""
     from ..sensors.fileio import read_sidecar, write_csv_table
-    from ..sensors.fused import write_fused_mcap
     if geometry is not None:  # the track geometry: geometry.csv + geometry.json
         write_csv_table(stage / "geometry.csv", geometry.table, geometry.units, "n", origin.to_dict(),
                         fmt="%.12g", extra=geometry.sidecar())
-    if cfg.outputs.fused_mcap:
-        write_fused_mcap(stage / "fused.mcap", table, origin, max_rate_hz=fused_pose_rate_hz, raw=raw,
-                         geometry=geometry.table if geometry is not None else None)
     if not (draw and cfg.outputs.report):
         return {}
     from .html import table_images
@@ -45,13 +57,18 @@ def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, 
 
 def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, np.ndarray], origin, cfg,
                         geometry=None, raw=None, fused_pose_rate_hz: float = 10.0) -> ForkedTask | None:
-    """:func:`write_table_outputs` (with the figures) in a forked child of ``background``; returns
-    its task (result: the figures), or None when children cannot be forked (then the outputs are
-    written in turn by ``pipeline.write_outputs``)."""
+    """:func:`write_table_outputs` (with the figures) in forked children of ``background``: one
+    writes fused.mcap (the raw log's copy is most of the time), the other geometry.csv and the
+    figures; returns the second's task (result: the figures), or None when children cannot be
+    forked (then the outputs are written in turn by ``pipeline.write_outputs``). ``background``
+    waits for both."""
     if not can_fork():
         return None
     if cfg.outputs.report:
         from .figures import preload
         preload()  # imported once here, not in every child
-    return background.submit("writing geometry.csv, fused.mcap and the report figures", write_table_outputs,
-                             stage, table, origin, cfg, geometry, raw, fused_pose_rate_hz, draw=True)
+    if cfg.outputs.fused_mcap:
+        background.submit("writing fused.mcap", write_fused, stage, table, origin, cfg, geometry, raw,
+                          fused_pose_rate_hz)
+    return background.submit("writing geometry.csv and the report figures", write_geometry_and_figures,
+                             stage, table, origin, cfg, geometry, draw=True)

@@ -39,7 +39,7 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 import zstandard
@@ -441,37 +441,70 @@ def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
     """Copy the source's metadata, chunk and message index records unchanged (chunks stay
     compressed; message indexes are relative to their chunk, so they stay valid); returns the
     metadata and chunk indexes of the copies. With ``offset_ns``, every message's log and
-    publish time moves by it (:func:`_shifted_chunk`, :func:`_shifted_message_index`)."""
+    publish time moves by it (:func:`_shifted_records`)."""
     metadata_indexes: list[MetadataIndex] = []
     chunk_indexes: list[ChunkIndex] = []
     last_op = None
+    for op, start, rec in _shifted_records(_source_records(source), offset_ns):
+        if op == _METADATA:
+            name = _Cursor(rec[9:], start + 9).text()
+            metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
+        elif op == _CHUNK:
+            t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
+            n = struct.unpack_from("<I", rec, 37)[0]
+            compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
+            chunk_indexes.append(ChunkIndex(
+                message_start_time=t0, message_end_time=t1, chunk_start_offset=out.put(rec),
+                chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
+                compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
+        elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
+            index = chunk_indexes[-1]  # message indexes follow their chunk
+            index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
+            index.message_index_length += len(rec)
+        last_op = op if op != _METADATA else last_op
+    return metadata_indexes, chunk_indexes
+
+
+def _source_records(source: RawSource) -> Iterator[tuple[int, int, bytes]]:
+    """``(opcode, start, record bytes)`` of the source's records, in file order."""
     with open(source.path, "rb") as src:
         for op, start, stop in source.records:
             src.seek(start)
             rec = src.read(stop - start)
             if len(rec) != stop - start:
                 raise SensorDataError(f"{source.path}: changed while being copied")
-            if op == _METADATA:
-                name = _Cursor(rec[9:], start + 9).text()
-                metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
-            elif op == _CHUNK:
-                if offset_ns:
-                    rec = _shifted_chunk(rec, offset_ns, start)
-                t0, t1, size = struct.unpack_from("<QQQ", rec, 9)
-                n = struct.unpack_from("<I", rec, 37)[0]
-                compressed = struct.unpack_from("<Q", rec, 41 + n)[0]
-                chunk_indexes.append(ChunkIndex(
-                    message_start_time=t0, message_end_time=t1, chunk_start_offset=out.put(rec),
-                    chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
-                    compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
-            elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
-                if offset_ns:
-                    rec = _shifted_message_index(rec, offset_ns)
-                index = chunk_indexes[-1]  # message indexes follow their chunk
-                index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
-                index.message_index_length += len(rec)
-            last_op = op if op != _METADATA else last_op
-    return metadata_indexes, chunk_indexes
+            yield op, start, rec
+
+
+#: chunks shifted at a time on the two threads (about 1 MB compressed each: bounded memory)
+SHIFT_WINDOW_CHUNKS = 8
+
+
+def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int
+                     ) -> Iterator[tuple[int, int, bytes]]:
+    """``records`` with every message's log and publish time moved by ``offset_ns``: the chunks
+    (:func:`_shifted_chunk`) and message indexes (:func:`_shifted_message_index`) of a window of
+    :data:`SHIFT_WINDOW_CHUNKS` chunks at a time on two threads (inflating and compressing
+    release the GIL), in their order. Unchanged without an offset."""
+    if not offset_ns:
+        yield from records
+        return
+
+    def shift(item: tuple[int, int, bytes]) -> bytes:
+        op, start, rec = item
+        if op == _CHUNK:
+            return _shifted_chunk(rec, offset_ns, start)
+        return _shifted_message_index(rec, offset_ns) if op == _MESSAGE_INDEX else rec
+
+    window: list[tuple[int, int, bytes]] = []
+    chunks = 0
+    for item in records:
+        window.append(item)
+        chunks += item[0] == _CHUNK
+        if chunks == SHIFT_WINDOW_CHUNKS:
+            yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
+            window, chunks = [], 0
+    yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
 
 
 def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
