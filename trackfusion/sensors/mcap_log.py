@@ -483,28 +483,33 @@ SHIFT_WINDOW_CHUNKS = 8
 def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int
                      ) -> Iterator[tuple[int, int, bytes]]:
     """``records`` with every message's log and publish time moved by ``offset_ns``: the chunks
-    (:func:`_shifted_chunk`) and message indexes (:func:`_shifted_message_index`) of a window of
-    :data:`SHIFT_WINDOW_CHUNKS` chunks at a time on two threads (inflating and compressing
-    release the GIL), in their order. Unchanged without an offset."""
+    (:func:`_shifted_chunk`) and the message indexes that follow them (:func:`_shifted_message_index`;
+    :func:`_copied_records` drops any other) of a window of :data:`SHIFT_WINDOW_CHUNKS` chunks at
+    a time on two threads (inflating and compressing release the GIL), in their order. Unchanged
+    without an offset."""
     if not offset_ns:
         yield from records
         return
 
-    def shift(item: tuple[int, int, bytes]) -> bytes:
-        op, start, rec = item
+    def shift(item: tuple[int, int, bytes, bool]) -> bytes:
+        op, start, rec, follows_chunk = item
         if op == _CHUNK:
             return _shifted_chunk(rec, offset_ns, start)
-        return _shifted_message_index(rec, offset_ns) if op == _MESSAGE_INDEX else rec
+        return _shifted_message_index(rec, offset_ns) if op == _MESSAGE_INDEX and follows_chunk else rec
 
-    window: list[tuple[int, int, bytes]] = []
-    chunks = 0
-    for item in records:
-        window.append(item)
-        chunks += item[0] == _CHUNK
+    def shifted(window: list) -> Iterator[tuple[int, int, bytes]]:
+        return ((op, start, rec) for (op, start, _, _), rec in thread_map(shift, window, workers=2))
+
+    window: list[tuple[int, int, bytes, bool]] = []
+    chunks, last_op = 0, None
+    for op, start, rec in records:
+        window.append((op, start, rec, last_op in (_CHUNK, _MESSAGE_INDEX)))
+        last_op = op if op != _METADATA else last_op
+        chunks += op == _CHUNK
         if chunks == SHIFT_WINDOW_CHUNKS:
-            yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
+            yield from shifted(window)
             window, chunks = [], 0
-    yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
+    yield from shifted(window)
 
 
 def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
