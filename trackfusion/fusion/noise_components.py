@@ -209,6 +209,12 @@ class NoiseComponents:
     quanta_m: dict[str, float] = field(default_factory=dict)
     fixed: bool = False
 
+    def applied_per_row(self, name: str) -> np.ndarray:
+        """The variance factor applied to each residual row of group ``name`` (one per entry of
+        :data:`COMPONENTS`; 1 where its component has none), e.g. (3,) e, n, u for ``gnss_error``."""
+        applied = self.applied.get(name, {})
+        return np.array([applied.get(c, 1.0) for c in COMPONENTS[name]])
+
     def wrap(self, builders: list, labels: dict[str, np.ndarray]) -> list:
         """``builders`` (name, build) with the applied factors of their groups (the others as they are)."""
         out = []

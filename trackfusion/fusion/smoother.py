@@ -1152,21 +1152,14 @@ def _round_graph(b: _Builder, base: tuple, values: gtsam.Values, gates: _Gates,
     Returns the graph and the builders of the GNSS and prism factors (None: none)."""
     b.restart(base)
     gates.solved_factor = gates.white_factor  # what this round's solve uses
-    gnss_build = (b.gnss(gates.used, values, gates.white_factor, _gnss_error_factor(components))
+    error_factor = components.applied_per_row("gnss_error") if components is not None else None
+    gnss_build = (b.gnss(gates.used, values, gates.white_factor, error_factor)
                   if gates.gnss is not None and gates.used.size else None)
     prism_build = b.prisms(gates.prism_used, values) if gates.prisms is not None else None
     if components is not None:  # the groups' estimated noise (fusion/noise_components.py)
         b.builders = components.wrap(b.builders, gates.labels())
         prism_build = dict(b.builders).get("prism", prism_build)
     return _Graph(b.g, b.builders, b.counts, gnss_build), gnss_build, prism_build
-
-
-def _gnss_error_factor(components: "nc.NoiseComponents | None") -> np.ndarray | None:
-    """The GNSS correlated part's variance factors applied (3,) (e, n, u), None: no estimation."""
-    if components is None:
-        return None
-    applied = components.applied.get("gnss_error", {})
-    return np.array([applied.get(c, 1.0) for c in nc.COMPONENTS["gnss_error"]])  # the rows' components
 
 
 def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, gates: _Gates,
