@@ -363,7 +363,8 @@ def _own_draws(name: str, blocks: dict[str, fx.LinearBlocks], weighted: dict[str
     res = (z[:, :, :own] - fitted[:, :, :own]) * mask  # ((I - H) z) on the rows
     t1 = np.einsum("kmd,kmd->d", z[:, :, :own], res).reshape(len(low), DRAWS)
     t2 = np.einsum("kmd,kmd->d", res, res).reshape(len(low), DRAWS)
-    taken_off = [float(np.mean(np.sum(fitted[:, :, own:]**2 * rows[c][:, :, None], axis=(0, 1)))) if robust else 0.0
+    robust_sq = fitted[:, :, own:] ** 2  # |(H x)|^2 of the robust rows' draws, per row (empty without)
+    taken_off = [float(np.mean(np.sum(robust_sq * rows[c][:, :, None], axis=(0, 1)))) if robust else 0.0
                  for c in low]
     return {c: (float(a.mean()), float(a.std(ddof=1) / np.sqrt(DRAWS)), float(b.mean()), off)
             for c, a, b, off in zip(low, t1, t2, taken_off)}
