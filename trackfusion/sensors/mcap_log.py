@@ -444,7 +444,6 @@ def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
     publish time moves by it (:func:`_shifted_records`)."""
     metadata_indexes: list[MetadataIndex] = []
     chunk_indexes: list[ChunkIndex] = []
-    last_op = None
     for op, start, rec in _shifted_records(_source_records(source), offset_ns):
         if op == _METADATA:
             name = _Cursor(rec[9:], start + 9).text()
@@ -457,23 +456,27 @@ def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
                 message_start_time=t0, message_end_time=t1, chunk_start_offset=out.put(rec),
                 chunk_length=len(rec), message_index_offsets={}, message_index_length=0,
                 compression=rec[41:41 + n].decode("utf-8"), compressed_size=compressed, uncompressed_size=size))
-        elif op == _MESSAGE_INDEX and last_op in (_CHUNK, _MESSAGE_INDEX):
-            index = chunk_indexes[-1]  # message indexes follow their chunk
+        else:  # a message index: it follows its chunk (_source_records)
+            index = chunk_indexes[-1]
             index.message_index_offsets[struct.unpack_from("<H", rec, 9)[0]] = out.put(rec)
             index.message_index_length += len(rec)
-        last_op = op if op != _METADATA else last_op
     return metadata_indexes, chunk_indexes
 
 
 def _source_records(source: RawSource) -> Iterator[tuple[int, int, bytes]]:
-    """``(opcode, start, record bytes)`` of the source's records, in file order."""
+    """``(opcode, start, record bytes)`` of the source's records that a copy takes, in file order:
+    the metadata, the chunks and the message indexes that follow a chunk (others are dropped)."""
+    last_op = None
     with open(source.path, "rb") as src:
         for op, start, stop in source.records:
             src.seek(start)
             rec = src.read(stop - start)
             if len(rec) != stop - start:
                 raise SensorDataError(f"{source.path}: changed while being copied")
-            yield op, start, rec
+            follows_chunk = last_op in (_CHUNK, _MESSAGE_INDEX)
+            last_op = op if op != _METADATA else last_op
+            if op in (_METADATA, _CHUNK) or op == _MESSAGE_INDEX and follows_chunk:
+                yield op, start, rec
 
 
 #: chunks shifted at a time on the two threads (about 1 MB compressed each: bounded memory)
@@ -482,34 +485,30 @@ SHIFT_WINDOW_CHUNKS = 8
 
 def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int
                      ) -> Iterator[tuple[int, int, bytes]]:
-    """``records`` with every message's log and publish time moved by ``offset_ns``: the chunks
-    (:func:`_shifted_chunk`) and the message indexes that follow them (:func:`_shifted_message_index`;
-    :func:`_copied_records` drops any other) of a window of :data:`SHIFT_WINDOW_CHUNKS` chunks at
-    a time on two threads (inflating and compressing release the GIL), in their order. Unchanged
+    """``records`` (:func:`_source_records`) with every message's log and publish time moved by
+    ``offset_ns``: the chunks (:func:`_shifted_chunk`) and message indexes
+    (:func:`_shifted_message_index`) of a window of :data:`SHIFT_WINDOW_CHUNKS` chunks at a time
+    on two threads (inflating and compressing release the GIL), in their order. Unchanged
     without an offset."""
     if not offset_ns:
         yield from records
         return
 
-    def shift(item: tuple[int, int, bytes, bool]) -> bytes:
-        op, start, rec, follows_chunk = item
+    def shift(item: tuple[int, int, bytes]) -> bytes:
+        op, start, rec = item
         if op == _CHUNK:
             return _shifted_chunk(rec, offset_ns, start)
-        return _shifted_message_index(rec, offset_ns) if op == _MESSAGE_INDEX and follows_chunk else rec
+        return _shifted_message_index(rec, offset_ns) if op == _MESSAGE_INDEX else rec
 
-    def shifted(window: list) -> Iterator[tuple[int, int, bytes]]:
-        return ((op, start, rec) for (op, start, _, _), rec in thread_map(shift, window, workers=2))
-
-    window: list[tuple[int, int, bytes, bool]] = []
-    chunks, last_op = 0, None
-    for op, start, rec in records:
-        window.append((op, start, rec, last_op in (_CHUNK, _MESSAGE_INDEX)))
-        last_op = op if op != _METADATA else last_op
-        chunks += op == _CHUNK
+    window: list[tuple[int, int, bytes]] = []
+    chunks = 0
+    for item in records:
+        window.append(item)
+        chunks += item[0] == _CHUNK
         if chunks == SHIFT_WINDOW_CHUNKS:
-            yield from shifted(window)
+            yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
             window, chunks = [], 0
-    yield from shifted(window)
+    yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
 
 
 def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
