@@ -72,6 +72,28 @@ def test_body_deltas_integrate_a_constant_rate_and_force():
     np.testing.assert_allclose(dp, 0.5 * np.outer(tau**2, f), atol=1e-15)
 
 
+def test_body_deltas_of_a_span_do_not_depend_on_the_others():
+    """Spans of 0 to 40 samples computed together are, to the bit, each computed alone; a span
+    from the last sample (a reading after the log's end) has no sample to integrate: the identity
+    and zeros (it used to integrate the last sample once for every step the longest span took)."""
+    rng = np.random.default_rng(7)
+    n = 200
+    t = np.cumsum(rng.uniform(0.004, 0.006, n))
+    imu = ImuData(t, rng.normal(0, 0.02, (n, 3)), rng.normal([0, 0, 9.8], 0.3, (n, 3)))
+    start = np.r_[rng.integers(0, n - 45, 30), n - 1, n - 2]
+    tau = np.r_[rng.uniform(-0.01, 0.2, 30), 0.05, 0.05]
+    together = body_deltas(imu, start, tau)
+    for i in range(start.size):
+        alone = body_deltas(imu, start[i:i + 1], tau[i:i + 1])
+        for a, b in zip(together, alone):
+            np.testing.assert_array_equal(a[i], b[0])
+    np.testing.assert_array_equal(together[0][30], np.eye(3))
+    np.testing.assert_array_equal(together[1][30], np.zeros(3))
+    assert not np.array_equal(together[1][31], np.zeros(3))  # n - 2: the last sample, once
+    np.testing.assert_allclose(together[1][31], body_deltas(imu, np.array([n - 2]), np.array([t[-1] - t[-2]]))[1][0],
+                               rtol=0, atol=0)
+
+
 @pytest.fixture(scope="module")
 def truth_residuals():
     """Wheel-path residuals and NHC velocities at the truth of a short ideal open-track survey."""
