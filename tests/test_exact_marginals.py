@@ -109,9 +109,9 @@ def test_sigmas_equal_the_dense_inverse_in_parts(problem, monkeypatch):
     counts = []
     real = smoother.part_marginal_covariances
 
-    def counting(partition, gfg, keys, workers, station_keys=None):
+    def counting(partition, gfg, keys, workers, *rest):
         counts.append(partition.count)
-        return real(partition, gfg, keys, workers, station_keys)
+        return real(partition, gfg, keys, workers, *rest)
     monkeypatch.setattr(smoother, "part_marginal_covariances", counting)
     duration = problem.imu.t_s[-1] - problem.imu.t_s[0]
     monkeypatch.setattr(smoother, "MARGINAL_PART_S", duration / 3 + 0.5)
@@ -126,9 +126,9 @@ def test_part_covariances_are_the_same_bits_on_any_number_of_processes(problem, 
     seen = []
     real = smoother.part_marginal_covariances
 
-    def recording(partition, gfg, keys, workers, station_keys=None):
+    def recording(partition, gfg, keys, workers, *rest):
         seen.append((partition, gfg, keys))
-        return real(partition, gfg, keys, workers, station_keys)
+        return real(partition, gfg, keys, workers, *rest)
     monkeypatch.setattr(smoother, "part_marginal_covariances", recording)
     monkeypatch.setattr(smoother, "MARGINAL_PART_S", (problem.imu.t_s[-1] - problem.imu.t_s[0]) / 3 + 0.5)
     smoother.smooth(problem)
@@ -139,3 +139,25 @@ def test_part_covariances_are_the_same_bits_on_any_number_of_processes(problem, 
     for k in keys:
         assert all(np.array_equal(by_workers[0][k], other[k]) for other in by_workers[1:])
         assert np.array_equal(by_workers[0][k], lazy.marginalCovariance(k))
+
+
+def test_the_converging_step_in_the_sigma_parts_hands_its_reductions_to_the_sigmas(problem, monkeypatch):
+    """A one-batch solve takes its converging step in the sigma columns' parts (the same step),
+    and the sigmas are made from that step's reductions: the same bits as reducing the parts
+    again, in 1 or 2 processes (the step's worker sends its reductions packed: a part's reduced
+    graph can hold a linearised IMU factor between two cut keyframes, which does not pickle)."""
+    seen = []
+    real = smoother.part_marginal_covariances
+
+    def recording(partition, gfg, keys, workers, *rest):
+        seen.append((partition, gfg, keys, rest))
+        return real(partition, gfg, keys, workers, *rest)
+    monkeypatch.setattr(smoother, "part_marginal_covariances", recording)
+    monkeypatch.setattr(smoother, "MARGINAL_PART_S", (problem.imu.t_s[-1] - problem.imu.t_s[0]) / 3 + 0.5)
+    smoother.smooth(problem)
+    (partition, gfg, keys, (station_keys, reduced)), = seen
+    assert partition.count == 3 and reduced is not None and len(reduced) == 3
+    again = real(partition, gfg, keys, 1)[0]
+    for workers in (1, 2):
+        given = real(partition, gfg, keys, workers, station_keys, reduced)[0]
+        assert all(np.array_equal(given[k], again[k]) for k in keys)

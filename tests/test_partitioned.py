@@ -164,8 +164,8 @@ def test_station_covariance_from_the_sigma_parts_separator(bridge, monkeypatch):
     seen = []
     real = SM._sigma_covariances
 
-    def recording(problem_, sol, gfg, partition, kf, keys, station_keys=None):
-        out = real(problem_, sol, gfg, partition, kf, keys, station_keys)
+    def recording(problem_, sol, gfg, partition, kf, keys, *rest):
+        out = real(problem_, sol, gfg, partition, kf, keys, *rest)
         seen.append((sol.gfg, SM._partition(problem_, kf, SM.MARGINAL_PART_S), out[1]))
         return out
     monkeypatch.setattr(SM, "_sigma_covariances", recording)

@@ -334,7 +334,8 @@ def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -
 
 
 def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGraph, keys: list[int],
-                              workers: int, joint_keys: list[int] | None = None
+                              workers: int, joint_keys: list[int] | None = None,
+                              reduced: list[gtsam.GaussianFactorGraph] | None = None
                               ) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` in linearised graph ``gfg``, computed in the parts of
     ``partition`` as :class:`PartMarginals` computes them (the same numbers), with the parts
@@ -346,17 +347,23 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     dimensions, square) when they are all separator keys (e.g. total-station set-ups seen in
     several parts), else None: the reduced factors of all the parts together are the exact
     marginal information of the separator, so this is :func:`joint_marginal_covariance` of that
-    small graph (no Bayes tree of the whole run is walked)."""
+    small graph (no Bayes tree of the whole run is walked).
+
+    ``reduced``: every part's reduced factors when a step solved in these parts has made them
+    already from ``gfg`` (:meth:`PartMarginals.reduced`; the same numbers): the processes then
+    only make the trees, the children reading them from the memory they were forked with."""
     layout = partition.layout(gfg)
     by_part: dict[int, list[int]] = {}
     for k in keys:
         by_part.setdefault(layout.home[int(k)], []).append(int(k))
 
     def reduce(group: list[int]) -> list[list[str]]:  # packed: a linear graph does not pickle
+        if reduced is not None:
+            return []
         return [_pack(_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced) for p in group]
 
     def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
-        marginals = PartMarginals(gfg, [_unpack(r) for r in packed], layout)
+        marginals = PartMarginals(gfg, reduced if reduced is not None else [_unpack(r) for r in packed], layout)
         return {k: marginal_covariance(marginals, k) for p in group for k in by_part.get(p, [])}
 
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
@@ -365,7 +372,8 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     packed, _, done = run_step(groups_of(partition.count, workers), reduce, all_reduced, covariances)
     joint = None
     if joint_keys and np.isin(np.asarray(joint_keys, np.uint64), layout.separator).all():
-        joint = joint_marginal_covariance(_union(_unpack(r) for r in packed), list(joint_keys))
+        joint = joint_marginal_covariance(_union(reduced if reduced is not None else (_unpack(r) for r in packed)),
+                                          list(joint_keys))
     return {k: v for group in done for k, v in group.items()}, joint
 
 
@@ -409,16 +417,24 @@ class PartitionedSolver:
         interior, orderings = layout.interior, self._orderings
         held: dict[int, _Reduced] = {}  # in the process that reduced them (trackfusion/parallel.py)
 
-        def reduce(group: list[int]) -> list[tuple[gtsam.GaussianFactorGraph, gtsam.Ordering | None]]:
+        def reduce(group: list[int]) -> list[tuple[list[str], gtsam.Ordering | None]]:
             for p in group:
                 held[p] = _reduce(layout.part_graph(gfg, p), interior[p], orderings.get(p))
-            # a part's ordering goes back once (the parent keeps it for the next iterations' workers)
-            return [(held[p].reduced, None if p in orderings else held[p].ordering) for p in group]
+            # packed: a reduced graph may hold a linearised GTSAM factor between two separator
+            # keys as it is, a bare GaussianFactor, which does not pickle; a part's ordering goes
+            # back once (the parent keeps it for the next iterations' workers)
+            return [(_pack(held[p].reduced), None if p in orderings else held[p].ordering) for p in group]
 
-        def solve_separator(reduced: list[list]) -> gtsam.VectorValues:
+        def solve_separator(reduced: list[list]) -> gtsam.VectorValues:  # of the unpacked groups
             if not layout.separator.size:
                 return gtsam.VectorValues()
             return _eliminate_all(_union(g for group in reduced for g, _ in group)).optimize()
+
+        unpacked: list[list[tuple[gtsam.GaussianFactorGraph, gtsam.Ordering | None]]] = []
+
+        def solve_local(reduced: list[list]) -> gtsam.VectorValues:
+            unpacked.extend([(_unpack(r), o) for r, o in group] for group in reduced)
+            return solve_separator(unpacked)
 
         def back_substitute(group: list[int], given: gtsam.VectorValues) -> dict[int, np.ndarray]:
             return _back_substitute(held, interior, group, given)
@@ -427,7 +443,8 @@ class PartitionedSolver:
         if self.partition.engine == "dask":
             separator, reduced, steps = self._dask_step(gfg, layout, groups, solve_separator)
         else:
-            separator, reduced, steps = run_step(groups, reduce, solve_separator, back_substitute)
+            separator, _, steps = run_step(groups, reduce, solve_local, back_substitute)
+            reduced = unpacked
         flat = [item for group in reduced for item in group]
         for p, (_, ordering) in enumerate(flat):
             if ordering is not None:
@@ -436,7 +453,7 @@ class PartitionedSolver:
         for step in steps:
             for k, v in step.items():
                 delta.insert(k, v)
-        return delta, PartMarginals(gfg, [g for g, _ in flat], layout)
+        return delta, PartMarginals(gfg, [g for g, _ in flat], layout, self.partition)
 
 
     def _dask_step(self, gfg: gtsam.GaussianFactorGraph, layout: Layout, groups: list[list[int]], solve_separator):
@@ -462,9 +479,16 @@ class PartMarginals:
     (exact; module docstring). Each part's tree is made at its first query and kept (together
     about the memory of the one-batch tree)."""
 
-    def __init__(self, gfg: gtsam.GaussianFactorGraph, reduced: list[gtsam.GaussianFactorGraph], layout: Layout):
+    def __init__(self, gfg: gtsam.GaussianFactorGraph, reduced: list[gtsam.GaussianFactorGraph], layout: Layout,
+                 partition: Partition | None = None):
         self._gfg, self._reduced, self._layout = gfg, reduced, layout
         self._trees: dict[int, gtsam.GaussianBayesTree] = {}
+        self.partition = partition  # the parts of the step that made it (None: not told)
+
+    @property
+    def reduced(self) -> list[gtsam.GaussianFactorGraph]:
+        """Every part's reduced factors on the separator (in part order)."""
+        return self._reduced
 
     def tree(self, key: int) -> gtsam.GaussianBayesTree:
         p = self._layout.home[int(key)]

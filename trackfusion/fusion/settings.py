@@ -237,7 +237,10 @@ class SmootherSettings(StrictModel):
     Nothing here depends on the CPU count: the same log gives the same trajectory anywhere.
 
     ``part_s``: each Gauss-Newton step is solved in time parts of this duration
-    (fusion/partitioned.py: the one-batch answer, to rounding; at least 10 s); null: in one piece.
+    (fusion/partitioned.py: the one-batch answer, to rounding; at least 10 s); null: in one piece,
+    but for the converging steps of a run longer than 600 s, which are solved in the sigma
+    columns' 600 s parts on the CPUs this process may use (the same step; their reductions serve
+    the sigmas: docs/solver_speed.md, "The converging step in the sigma parts").
 
     ``engine``: where the parts are solved: ``local`` (``workers`` processes of this machine) or
     ``dask`` (the workers of the Dask scheduler at ``address``, else of a ``distributed.LocalCluster``

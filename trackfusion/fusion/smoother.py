@@ -34,8 +34,8 @@ from .preprocess import odometer_quantum_m
 from .problem import FusionProblem, GnssFixes
 from ..forked import ForkedTasks, can_fork, usable_cpus
 from ..parallel import dask_client
-from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, cut_times, joint_marginal_covariance,
-                          marginal_covariance, part_marginal_covariances)
+from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, PartMarginals, cut_times,
+                          joint_marginal_covariance, marginal_covariance, part_marginal_covariances)
 from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
@@ -936,8 +936,9 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
 
     tic = time.perf_counter()
     partition = _partition(problem, kf)
+    sigma_parts = _sigma_parts(problem, kf, partition, join, hand_over_t_s)
     components = _noise_components(problem, join.noise_applied if join is not None else None)
-    rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say)
+    rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say, sigma_parts)
     timings["solve_s"] = time.perf_counter() - tic
     noise = gates.final_noise(say)
     components_json = _components_json(components, fs, say)
@@ -948,7 +949,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
 
     tic = time.perf_counter()
     (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf,
-                                                                   hand_over_t_s, gates)
+                                                                   hand_over_t_s, gates, sigma_parts)
     if hand_over is not None and components is not None:
         hand_over = replace(hand_over, noise_applied={g: dict(c) for g, c in components.applied.items()})
     timings["marginals_s"] = time.perf_counter() - tic
@@ -1164,10 +1165,11 @@ def _round_graph(b: _Builder, base: tuple, values: gtsam.Values, gates: _Gates,
 
 def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, gates: _Gates,
                      partition: Partition | None, components: "nc.NoiseComponents | None",
-                     say: Callable[[str], None]) -> _Rounds:
+                     say: Callable[[str], None], sigma_parts: Partition | None = None) -> _Rounds:
     """Solve, gate the GNSS fixes and prism readings (``gates``) and estimate the noise
     ``components``, and again, until a round rejects nothing (at most 4 rounds, and the noise
-    refits); that round then converges to the configured tolerance."""
+    refits); that round then converges to the configured tolerance, in the parts ``sigma_parts``
+    when given (:func:`_sigma_parts`: the same step; its reductions then serve the sigmas)."""
     base = b.snapshot()
     sm = problem.smoother
     stop = StopRule(sm.max_iterations, sm.relative_tolerance, sm.step_tolerance_mm * 1e-3)  # step: m; 0: off
@@ -1190,7 +1192,7 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
 
         def converge(tell: Callable[[str], None], sol: _Solved = sol, G: _Graph = G, values=values) -> _Solved:
-            return gauss_newton(G, values, b.kf.with_scale, stop, tell, sol, partition)
+            return gauss_newton(G, values, b.kf.with_scale, stop, tell, sol, sigma_parts or partition)
         settled = None
         # the groups' noise from the same solve as the GNSS white noise's (one round for both,
         # as Helmert's estimate takes every component at once); not while readings were rejected
@@ -1221,11 +1223,12 @@ def _components_json(components: "nc.NoiseComponents | None", fs, say: Callable[
 
 
 def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", partition: Partition | None,
-               kf: _Keyframes, hand_over_t_s: float | None, gates: _Gates
+               kf: _Keyframes, hand_over_t_s: float | None, gates: _Gates, sigma_parts: Partition | None = None
                ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], HandOver | None, np.ndarray | None]:
     """The sigmas of :func:`_marginal_sigmas` at the solve, the :class:`HandOver` at the
     keyframe nearest to ``hand_over_t_s`` (None: none), and the station corrections' joint
-    covariance (:func:`_station_covariance`; None: no total stations)."""
+    covariance (:func:`_station_covariance`; None: no total stations). ``sigma_parts``:
+    :func:`_sigma_parts`."""
     sol = rounds.sol
     values = sol.values
     # the solve's last linearisation serves the marginals (at most one converged step before the
@@ -1234,7 +1237,7 @@ def _marginals(problem: FusionProblem, rounds: _Rounds, soft: "_SoftJoin", parti
     sel = _sigma_keyframes(kf.t_s, problem.smoother.marginal_step_s)
     station_keys = [T(j) for j in range(len(gates.prisms.station_ids))] if gates.prisms is not None else None
     covs, station_cov = _sigma_covariances(problem, sol, gfg if soft.keys else None, partition, kf,
-                                           [X(int(k)) for k in sel], station_keys)
+                                           [X(int(k)) for k in sel], station_keys, sigma_parts)
     if station_keys is not None and station_cov is None:
         station_cov = _station_covariance(gates.prisms, sol.tree)
     sigmas = _marginal_sigmas(covs, sol.state, kf.t_s, sel)
@@ -1309,14 +1312,20 @@ def _estimate_in_child(components: "nc.NoiseComponents", G: _Graph, sol: "_Solve
 
 def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.GaussianFactorGraph | None,
                        partition: Partition | None, kf: _Keyframes, keys: list[int],
-                       station_keys: list[int] | None = None) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
+                       station_keys: list[int] | None = None, sigma_parts: Partition | None = None
+                       ) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` behind the sigma columns, exact on a run of any
     length: of ``gfg`` (a chunk's own marginal graph) or else of the solve's last linearisation,
     in parts of at most :data:`~.partitioned.MARGINAL_PART_S` (fusion/partitioned.py: a whole
     hour's Bayes tree drifts), dealt to the CPUs this process may use (the same numbers on any
     count). The solve's own tree when it is that already: a run no longer than one such part,
     or one solved in parts no longer. Also the joint covariance of ``station_keys`` when the
-    parts give it (their separator's: :func:`~.partitioned.part_marginal_covariances`), else None."""
+    parts give it (their separator's: :func:`~.partitioned.part_marginal_covariances`), else None.
+    When the solve's last step was solved in ``sigma_parts`` (:func:`_sigma_parts`), its parts'
+    reductions are those the sigma parts would make again: only their trees are made."""
+    if gfg is None and sigma_parts is not None and isinstance(sol.tree, PartMarginals) \
+            and sol.tree.partition is sigma_parts:
+        return part_marginal_covariances(sigma_parts, sol.gfg, keys, usable_cpus(), station_keys, sol.tree.reduced)
     parts = _partition(problem, kf, MARGINAL_PART_S)
     if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
         tree = sol.tree
@@ -1326,6 +1335,21 @@ def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.Gaussian
         return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus(),
                                          station_keys)
     return {k: marginal_covariance(tree, k) for k in keys}, None
+
+
+def _sigma_parts(problem: FusionProblem, kf: _Keyframes, partition: Partition | None, join: HandOver | None,
+                 hand_over_t_s: float | None) -> Partition | None:
+    """The parts of :data:`~.partitioned.MARGINAL_PART_S` that the sigma columns of a one-batch
+    solve are computed in, on the CPUs this process may use (the same numbers on any count), for
+    the solve's converging steps (:func:`_solve_in_rounds`): their last step's reductions are the
+    ones the sigmas need (:func:`_sigma_covariances`). None: a run of one such part, a solve in
+    parts already, or a chunk (whose marginals come from a graph of their own)."""
+    if partition is not None or join is not None or hand_over_t_s is not None:
+        return None
+    parts = _partition(problem, kf, MARGINAL_PART_S)
+    if parts.count == 1:
+        return None
+    return replace(parts, workers=usable_cpus(), engine="local", address=None)
 
 
 def _partition(problem: FusionProblem, kf: _Keyframes, part_s: float | None = None) -> Partition | None:
