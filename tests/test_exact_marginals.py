@@ -155,9 +155,9 @@ def test_the_converging_step_in_the_sigma_parts_hands_its_reductions_to_the_sigm
     monkeypatch.setattr(smoother, "part_marginal_covariances", recording)
     monkeypatch.setattr(smoother, "MARGINAL_PART_S", (problem.imu.t_s[-1] - problem.imu.t_s[0]) / 3 + 0.5)
     smoother.smooth(problem)
-    (partition, gfg, keys, (station_keys, reduced)), = seen
-    assert partition.count == 3 and reduced is not None and len(reduced) == 3
+    (partition, gfg, keys, (station_keys, made)), = seen
+    assert partition.count == 3 and made is not None and len(made.reduced) == 3
     again = real(partition, gfg, keys, 1)[0]
     for workers in (1, 2):
-        given = real(partition, gfg, keys, workers, station_keys, reduced)[0]
+        given = real(partition, gfg, keys, workers, station_keys, made)[0]
         assert all(np.array_equal(given[k], again[k]) for k in keys)

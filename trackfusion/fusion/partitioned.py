@@ -335,8 +335,7 @@ def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -
 
 def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGraph, keys: list[int],
                               workers: int, joint_keys: list[int] | None = None,
-                              reduced: list[gtsam.GaussianFactorGraph] | None = None
-                              ) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
+                              made: "PartMarginals | None" = None) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` in linearised graph ``gfg``, computed in the parts of
     ``partition`` as :class:`PartMarginals` computes them (the same numbers), with the parts
     dealt to ``workers`` processes (trackfusion/parallel.py): each reduces its parts, every
@@ -349,21 +348,21 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     marginal information of the separator, so this is :func:`joint_marginal_covariance` of that
     small graph (no Bayes tree of the whole run is walked).
 
-    ``reduced``: every part's reduced factors when a step solved in these parts has made them
-    already from ``gfg`` (:meth:`PartMarginals.reduced`; the same numbers): the processes then
-    only make the trees, the children reading them from the memory they were forked with."""
-    layout = partition.layout(gfg)
+    ``made``: the marginals of a step solved in these parts of ``gfg`` (:meth:`PartitionedSolver.solve`),
+    whose layout and reduced factors are the ones made here otherwise (the same numbers): the
+    processes then only make the trees, the children reading it from the memory they were forked with."""
+    layout = made.layout if made is not None else partition.layout(gfg)
     by_part: dict[int, list[int]] = {}
     for k in keys:
         by_part.setdefault(layout.home[int(k)], []).append(int(k))
 
     def reduce(group: list[int]) -> list[list[str]]:  # packed: a linear graph does not pickle
-        if reduced is not None:
+        if made is not None:
             return []
         return [_pack(_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced) for p in group]
 
     def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
-        marginals = PartMarginals(gfg, reduced if reduced is not None else [_unpack(r) for r in packed], layout)
+        marginals = made if made is not None else PartMarginals(gfg, [_unpack(r) for r in packed], layout)
         return {k: marginal_covariance(marginals, k) for p in group for k in by_part.get(p, [])}
 
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
@@ -372,7 +371,7 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     packed, _, done = run_step(groups_of(partition.count, workers), reduce, all_reduced, covariances)
     joint = None
     if joint_keys and np.isin(np.asarray(joint_keys, np.uint64), layout.separator).all():
-        joint = joint_marginal_covariance(_union(reduced if reduced is not None else (_unpack(r) for r in packed)),
+        joint = joint_marginal_covariance(_union(made.reduced if made is not None else (_unpack(r) for r in packed)),
                                           list(joint_keys))
     return {k: v for group in done for k, v in group.items()}, joint
 
@@ -489,6 +488,11 @@ class PartMarginals:
     def reduced(self) -> list[gtsam.GaussianFactorGraph]:
         """Every part's reduced factors on the separator (in part order)."""
         return self._reduced
+
+    @property
+    def layout(self) -> Layout:
+        """The parts' :class:`Layout` of the linearised graph."""
+        return self._layout
 
     def tree(self, key: int) -> gtsam.GaussianBayesTree:
         p = self._layout.home[int(key)]

@@ -122,8 +122,12 @@ def sculling_compensated(imu: ImuData) -> tuple[np.ndarray, np.ndarray]:
     """
     dt = np.diff(imu.t_s, prepend=np.nan)
     dt[0] = np.median(dt[1:]) if dt.size > 1 else 0.0
-    f = imu.accel_mps2 + 0.5 * dt[:, None] * np.cross(imu.gyro_radps, imu.accel_mps2)
-    return dt, f
+    return dt, _sculled(imu.accel_mps2, imu.gyro_radps, dt)
+
+
+def _sculled(accel_mps2: np.ndarray, gyro_radps: np.ndarray, dt_s: np.ndarray) -> np.ndarray:
+    """Sculling-compensated specific force (N, 3) [m/s^2] of samples (N, 3) over intervals ``dt_s`` (N,) [s]."""
+    return accel_mps2 + 0.5 * dt_s[:, None] * np.cross(gyro_radps, accel_mps2)
 
 
 def preintegrate(imu: ImuData, key_idx: np.ndarray, noise: ImuNoise, gravity_n: np.ndarray,
@@ -175,7 +179,7 @@ def body_deltas(imu: ImuData, start_idx: np.ndarray, tau_s: np.ndarray) -> tuple
         m = int(np.searchsorted(-steps, -offset, side="right"))  # the spans with steps >= offset
         s = np.minimum(start[:m] + offset, n - 1)  # >= 1
         dt = imu.t_s[s] - imu.t_s[s - 1]
-        f = imu.accel_mps2[s] + 0.5 * dt[:, None] * np.cross(imu.gyro_radps[s], imu.accel_mps2[s])  # as sculling_compensated
+        f = _sculled(imu.accel_mps2[s], imu.gyro_radps[s], dt)
         h = np.clip(t_end[:m] - imu.t_s[s - 1], 0.0, dt)
         a = np.einsum("kij,kj->ki", dR[:m], f)
         dp[:m] += dv[:m] * h[:, None] + 0.5 * a * h[:, None] ** 2

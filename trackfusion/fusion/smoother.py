@@ -1325,8 +1325,8 @@ def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.Gaussian
     reductions are those the sigma parts would make again: only their trees are made."""
     if gfg is None and sigma_parts is not None and isinstance(sol.tree, PartMarginals) \
             and sol.tree.partition is sigma_parts:
-        return part_marginal_covariances(sigma_parts, sol.gfg, keys, usable_cpus(), station_keys, sol.tree.reduced)
-    parts = _partition(problem, kf, MARGINAL_PART_S)
+        return part_marginal_covariances(sigma_parts, sol.gfg, keys, usable_cpus(), station_keys, sol.tree)
+    parts = sigma_parts or _partition(problem, kf, MARGINAL_PART_S)
     if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
         tree = sol.tree
     elif parts.count == 1:
