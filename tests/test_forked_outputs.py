@@ -147,6 +147,7 @@ def test_outputs_written_in_forked_children_are_those_written_in_turn(two_runs):
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
     assert {"trajectory.csv", "geometry.csv", "fused.mcap", "report.html", "metrics.json"} <= set(names)
+    assert not [n for n in names if n.startswith(".fused")]  # the copy begun while smoothing became fused.mcap
     for name in names:
         if name not in ("report.html", "metrics.json"):  # those two show the run time
             assert (a / name).read_bytes() == (b / name).read_bytes(), name
@@ -154,22 +155,24 @@ def test_outputs_written_in_forked_children_are_those_written_in_turn(two_runs):
     assert _masked_report(a).count("data:image/png;base64,") == 6  # plan, sigmas, accuracy, 3 geometry
 
 
-@pytest.mark.parametrize("failure", ["error", "death"])
+@pytest.mark.parametrize("failure", ["error", "death", "copy error", "copy death"])
 def test_a_failed_forked_writer_leaves_nothing_and_exits_2_with_one_line(tiny, tmp_path, monkeypatch, capsys,
                                                                          failure):
+    """fused.mcap's writer fails, or the copy of the raw log it began while the run smoothed."""
     from trackfusion.sensors import fused
 
     def broken(path, *args, **kwargs):
-        if failure == "death":
+        if failure.endswith("death"):
             os._exit(9)
-        raise SensorDataError(f"{path}: no space left on device")
+        raise SensorDataError(f"{path if 'copy' not in failure else path / 'fused.mcap'}: no space left on device")
 
-    monkeypatch.setattr(fused, "write_fused_mcap", broken)
+    monkeypatch.setattr(fused, "start_raw_copy" if "copy" in failure else "write_fused_mcap", broken)
     out = tmp_path / "out"
     assert _run(tiny, out) == 2
     err = capsys.readouterr().err.strip().splitlines()  # progress lines, then the error
     errors = [line for line in err if ": error: " in line]
     assert errors == [err[-1]] and err[-1].startswith("trackfusion run: error: ") and "Traceback" not in "".join(err)
-    assert err[-1].endswith("fused.mcap: no space left on device" if failure == "error"
-                            else "writing fused.mcap: the forked child process died (exit code 9)")
+    assert err[-1].endswith("fused.mcap: no space left on device" if failure.endswith("error")
+                            else ("copying the raw log into fused.mcap" if "copy" in failure else "writing fused.mcap")
+                            + ": the forked child process died (exit code 9)")
     assert not out.exists() and list(tmp_path.iterdir()) == []  # nor a staging folder

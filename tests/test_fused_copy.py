@@ -11,7 +11,7 @@ from mcap.writer import CompressionType, Writer
 from trackfusion.errors import SensorDataError
 from trackfusion.geodesy import Origin
 from trackfusion.sensors.fused import write_fused_mcap
-from trackfusion.sensors.mcap_log import _scan_file, copy_log, read_log, write_log
+from trackfusion.sensors.mcap_log import _scan_file, copy_log, finish_copy, read_log, start_copy, write_log
 from test_mcap_log import small_log
 
 ORIGIN = Origin(22.9, 112.9, 20.0)
@@ -199,3 +199,42 @@ def test_our_log_copied_on_the_absolute_clock(tmp_path):
         assert moved[topic] == [m[:4] + (m[4] + 10**18, m[5]) for m in msgs], topic
     with open(tmp_path / "moved.mcap", "rb") as fh:
         assert all(m.publish_time == m.log_time for _s, _c, m in make_reader(fh).iter_messages())
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_copy_begun_early_and_finished_later_is_the_copy_in_one_go(tmp_path, workers):
+    """A run begins fused.mcap's copy while it smooths (``start_copy``, one thread) and writes the
+    rest with the estimate (``finish_copy``): the same bytes as ``copy_log``, and nothing left
+    beside the file."""
+    _foreign(tmp_path / "raw.mcap", CompressionType.ZSTD, chunked=True)
+    log = read_log(tmp_path / "raw.mcap")
+    extra = __import__("trackfusion.sensors.fused", fromlist=["trajectory_channels"]).trajectory_channels(
+        _table(), ORIGIN, 10.0, 10**18)
+    copy_log(tmp_path / "whole.mcap", log.source, extra, time_offset_ns=10**18)
+    (tmp_path / "out").mkdir()
+    head = start_copy(tmp_path / "out" / ".begun", log.source, 10**18, workers)
+    assert head.pos == (tmp_path / "out" / ".begun").stat().st_size
+    finish_copy(tmp_path / "out" / "fused.mcap", head, extra)
+    assert (tmp_path / "out" / "fused.mcap").read_bytes() == (tmp_path / "whole.mcap").read_bytes()
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["fused.mcap"]
+    fused, _, summary = _contents(tmp_path / "whole.mcap")
+    assert set(fused) == {"/imu", "/odometer"} | EXTRA_TOPICS and summary.statistics.channel_message_counts[1] == 400
+
+
+def test_a_copy_that_fails_leaves_no_file(tmp_path, monkeypatch):
+    """The first part is removed when it fails, and so is the whole when its rest fails."""
+    from trackfusion.sensors import mcap_log
+    _foreign(tmp_path / "raw.mcap", CompressionType.ZSTD, chunked=True)
+    log = read_log(tmp_path / "raw.mcap")
+    (tmp_path / "out").mkdir()
+    head = start_copy(tmp_path / "out" / ".begun", log.source, 10**18)
+
+    def full(*_args):
+        raise OSError("no space left on device")
+    monkeypatch.setattr(mcap_log, "_write_chunks", full)
+    with pytest.raises(OSError):
+        finish_copy(tmp_path / "out" / "fused.mcap", head, [])
+    monkeypatch.setattr(mcap_log, "_copied_records", full)
+    with pytest.raises(OSError):
+        start_copy(tmp_path / "out" / ".begun", log.source, 10**18)
+    assert list((tmp_path / "out").iterdir()) == []

@@ -39,8 +39,9 @@ from .geometry_inputs import check_geometry_inputs, geometry_for_run
 from .forked import ForkedTasks, can_fork as can_fork_tasks, usable_cpus
 from .output_prefetch import OutputPrefetch
 from .registration.stations import SETUP_POSITION_SIGMA_MM, StationSetupConfig
-from .report.outputs import start_table_outputs
+from .report.outputs import start_raw_copy, start_table_outputs
 from .rotations import quat_from_R
+from .sensors.fileio import CsvTableOnDisk
 from .sensors.imu import IMU_GRADES, ImuSpec
 from .sensors.spill import release_free_memory
 from .sensor_use import ClockConfig, decide_sensor_use, summary_lines as sensor_summary_lines
@@ -662,6 +663,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
     chunked = _in_chunks(pipeline, problem, duration_s)
     with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
+        raw_copy = start_raw_copy(background, stage, log, cfg) if not chunked else None  # (report/outputs.py)
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
             prefetch = OutputPrefetch(pipeline.path(cfg.inputs.reference) if cfg.inputs.reference else None)
             if chunked:  # memory bounded by the chunk (docs/long_runs.md); rebound: no reference keeps the IMU read
@@ -681,7 +683,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         geometry = _geometry_step(pipeline, problem, smoothed, log, metrics, timings, say)
         # --- outputs of the tables alone, in a forked child while the evaluation goes on (report/outputs.py) ---
         early = start_table_outputs(background, stage, table, problem.origin, cfg, geometry, log,
-                                    FUSED_POSE_RATE_HZ) if table is not None else None
+                                    raw_copy) if table is not None else None
         smoothed.release_geometry_rows()
         if cfg.inputs.reference is not None:
             say(f"evaluating against the reference {pipeline.path(cfg.inputs.reference)}")
@@ -694,9 +696,8 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
         metrics["run_time_s"] = timings["total_s"]
         say("writing the outputs" + ", fused.mcap" * cfg.outputs.fused_mcap + ", report.html" * cfg.outputs.report)
         files = write_outputs(stage, out, metrics, problem.origin, cfg,
-                              OutputSources(table, geometry, log, smoothed.fused_table, early, background))
+                              OutputSources(table, geometry, log, smoothed.fused_table, early, background, raw_copy))
     say(f"[{cfg.name}] done in {timings['total_s']:.1f} s: {out}/")
-    from .sensors.fileio import CsvTableOnDisk
     return RunResult(out, files, metrics, table if table is not None else CsvTableOnDisk(out / "trajectory.csv"), res)
 
 
@@ -804,10 +805,6 @@ def _geometry_step(pipeline: Pipeline, problem: FusionProblem, smoothed: _Smooth
     return geometry
 
 
-#: rate of the poses in fused.mcap [Hz] (a long run keeps only those rows of its trajectory for it)
-FUSED_POSE_RATE_HZ = 10.0
-
-
 def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sink: Callable[[dict], None],
                      cfg: PipelineConfig, say: Callable[[str], None], after_chunk: Callable[[], None],
                      empty: Callable[[tuple], np.ndarray] = np.empty):
@@ -818,6 +815,7 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
     with what the geometry, the reference evaluation and fused.mcap need of the rows."""
     from .fusion.chunks import smooth_in_chunks
     from .fusion.output_rate import StreamedTrajectory
+    from .sensors.fused import FUSED_POSE_RATE_HZ
     thin_every = max(1, int(round(imu_rate_hz / (FUSED_POSE_RATE_HZ * every))))
     stream = StreamedTrajectory(problem.odometer, problem.trolley.axis_b, sink, problem.imu.t_s.size // every + 1,
                                 thin_every if cfg.outputs.fused_mcap else None,
@@ -848,10 +846,11 @@ class OutputSources:
     None when it is only on disk (a run in chunks); ``geometry``: the track geometry or None;
     ``raw``: the input log as read, whose topics fused.mcap carries; ``fused_table``: the
     trajectory rows fused.mcap shows when not ``table`` (a long run's rows at
-    :data:`FUSED_POSE_RATE_HZ`); ``early``: the forked task already writing geometry.csv and
+    :data:`~trackfusion.sensors.fused.FUSED_POSE_RATE_HZ`); ``early``: the forked task already writing geometry.csv and
     drawing the table figures, fused.mcap in another (:func:`~trackfusion.report.outputs.start_table_outputs`);
     ``background``: the run's forked tasks, all waited for (and their failures raised) before
-    the files are listed."""
+    the files are listed; ``raw_copy``: the task that began fused.mcap's copy of ``raw``
+    (:func:`~trackfusion.report.outputs.start_raw_copy`; None: none)."""
 
     table: dict[str, np.ndarray] | None
     geometry: Any = None
@@ -859,6 +858,7 @@ class OutputSources:
     fused_table: dict[str, np.ndarray] | None = None
     early: Any = None
     background: ForkedTasks | None = None
+    raw_copy: Any = None
 
 
 def write_outputs(stage: Path, out: Path, metrics: dict, origin: geodesy.Origin, cfg: PipelineConfig,
@@ -873,7 +873,7 @@ def write_outputs(stage: Path, out: Path, metrics: dict, origin: geodesy.Origin,
     # --- geometry.csv, Foxglove log and report, from the staged files (report last) ---
     if early is None:
         images = write_table_outputs(stage, table if src.fused_table is None else src.fused_table, origin, cfg,
-                                     geometry, src.raw, FUSED_POSE_RATE_HZ)
+                                     geometry, src.raw, raw_copy=src.raw_copy)
     else:  # the metrics' figures drawn here while the child may still be drawing the tables'
         from .report.html import metrics_images
         from .sensors.fileio import read_json

@@ -21,22 +21,43 @@ from ..forked import ForkedTask, ForkedTasks, can_fork
 
 
 def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None, raw=None,
-                        fused_pose_rate_hz: float = 10.0, draw: bool = False) -> dict[str, str]:
+                        draw: bool = False, raw_copy: ForkedTask | None = None) -> dict[str, str]:
     """Write ``geometry.csv`` (+ sidecar, when ``geometry``) and ``fused.mcap`` (when
-    ``cfg.outputs.fused_mcap``: the rows of ``table`` at ``fused_pose_rate_hz``, the rails, the raw
-    log ``raw``) into ``stage``; with ``draw`` (and ``cfg.outputs.report``) returns the report's
-    figures of ``table`` and the geometry (:func:`~trackfusion.report.html.table_images`), else {}."""
-    write_fused(stage, table, origin, cfg, geometry, raw, fused_pose_rate_hz)
+    ``cfg.outputs.fused_mcap``: the rows of ``table`` at most at ``sensors.fused.FUSED_POSE_RATE_HZ``, the rails, the raw
+    log ``raw``, whose copy ``raw_copy`` began, :func:`start_raw_copy`) into ``stage``; with ``draw``
+    (and ``cfg.outputs.report``) returns the report's figures of ``table`` and the geometry
+    (:func:`~trackfusion.report.html.table_images`), else {}."""
+    write_fused(stage, table, origin, cfg, geometry, raw, _begun(raw_copy))
     return write_geometry_and_figures(stage, table, origin, cfg, geometry, draw)
 
 
 def write_fused(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None, raw=None,
-                fused_pose_rate_hz: float = 10.0) -> None:
-    """``fused.mcap`` of :func:`write_table_outputs` (nothing when ``cfg.outputs.fused_mcap`` is off)."""
+                copy=None) -> None:
+    """``fused.mcap`` of :func:`write_table_outputs` (nothing when ``cfg.outputs.fused_mcap`` is off);
+    ``copy``: the first part of its copy of ``raw``, written already (:func:`start_raw_copy`)."""
     if cfg.outputs.fused_mcap:
         from ..sensors.fused import write_fused_mcap
-        write_fused_mcap(stage / "fused.mcap", table, origin, max_rate_hz=fused_pose_rate_hz, raw=raw,
-                         geometry=geometry.table if geometry is not None else None)
+        write_fused_mcap(stage / "fused.mcap", table, origin, raw=raw,
+                         geometry=geometry.table if geometry is not None else None, copy=copy)
+
+
+def start_raw_copy(background: ForkedTasks, stage: Path, raw, cfg) -> ForkedTask | None:
+    """The first part of fused.mcap's copy of the raw log ``raw`` (:func:`~trackfusion.sensors.fused.start_raw_copy`:
+    most of fused.mcap's writing, and it needs nothing of the estimate) begun in a forked child of
+    ``background`` on one thread, while the run smooths on the other CPU (its one-batch solve
+    mostly uses one); None when fused.mcap is off or ``raw`` has no file to copy. (A run in
+    chunks does not begin it: its child would keep the log's pages that the chunks free.) The task's
+    result goes to :func:`write_table_outputs` or :func:`start_table_outputs`; the bytes are
+    those of the copy made there."""
+    if not cfg.outputs.fused_mcap or raw is None or raw.source is None:
+        return None
+    from ..sensors.fused import start_raw_copy as start
+    return background.submit("copying the raw log into fused.mcap", start, stage, raw, 1)
+
+
+def _begun(raw_copy: ForkedTask | None):
+    """The :class:`~trackfusion.sensors.mcap_log.CopyHead` of :func:`start_raw_copy`'s task (None: none)."""
+    return raw_copy.result() if raw_copy is not None else None
 
 
 def write_geometry_and_figures(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None,
@@ -56,9 +77,9 @@ def write_geometry_and_figures(stage: Path, table: dict[str, np.ndarray], origin
 
 
 def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, np.ndarray], origin, cfg,
-                        geometry=None, raw=None, fused_pose_rate_hz: float = 10.0) -> ForkedTask | None:
+                        geometry=None, raw=None, raw_copy: ForkedTask | None = None) -> ForkedTask | None:
     """:func:`write_table_outputs` (with the figures) in forked children of ``background``: one
-    writes fused.mcap (the raw log's copy is most of the time), the other geometry.csv and the
+    writes fused.mcap (the rest of the raw log's copy ``raw_copy``, or all of it), the other geometry.csv and the
     figures; returns the second's task (result: the figures), or None when children cannot be
     forked (then the outputs are written in turn by ``pipeline.write_outputs``). ``background``
     waits for both."""
@@ -69,6 +90,6 @@ def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, n
         preload()  # imported once here, not in every child
     if cfg.outputs.fused_mcap:
         background.submit("writing fused.mcap", write_fused, stage, table, origin, cfg, geometry, raw,
-                          fused_pose_rate_hz)
+                          _begun(raw_copy))
     return background.submit("writing geometry.csv and the report figures", write_geometry_and_figures,
                              stage, table, origin, cfg, geometry, draw=True)

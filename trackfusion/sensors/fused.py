@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import geodesy
 from . import schemas
-from .mcap_log import ExtraChannel, copy_log, write_log
+from .mcap_log import CopyHead, ExtraChannel, copy_log, finish_copy, start_copy, write_log
 from .types import SensorLog
 
 #: Most points per drawn line (traces are decimated evenly to this).
@@ -160,7 +160,11 @@ def _float_columns(a: np.ndarray) -> list[list[float]]:
     return [a[:, j].astype(np.float64).tolist() for j in range(a.shape[1])]
 
 
-def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = 10.0,
+#: rate of the poses in fused.mcap [Hz] (a long run keeps only those rows of its trajectory for it)
+FUSED_POSE_RATE_HZ = 10.0
+
+
+def trajectory_channels(table: dict[str, np.ndarray], origin: geodesy.Origin, max_rate_hz: float = FUSED_POSE_RATE_HZ,
                         epoch_ns: int = 0) -> list[ExtraChannel]:
     """Pose, fix, transform and path channels of a trajectory table (trajectory.csv columns), at
     log times ``epoch_ns`` + t_s (the survey's absolute clock, :func:`survey_epoch_ns`)."""
@@ -205,8 +209,8 @@ RAIL_COLUMNS = tuple(f"{side}_{a}_m" for side in ("left", "right") for a in "enu
 
 
 def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geodesy.Origin,
-                     max_rate_hz: float = 10.0, raw: SensorLog | None = None,
-                     geometry: dict[str, np.ndarray] | None = None) -> None:
+                     max_rate_hz: float = FUSED_POSE_RATE_HZ, raw: SensorLog | None = None,
+                     geometry: dict[str, np.ndarray] | None = None, copy: CopyHead | None = None) -> None:
     """Write ``fused.mcap`` (module docstring): the trajectory table (trajectory.csv columns), the
     rails when ``geometry`` has the rail columns, and the topics and metadata of the raw log
     ``raw`` (as read by :func:`~trackfusion.sensors.mcap_log.read_log`) when given.
@@ -214,15 +218,33 @@ def write_fused_mcap(path: str | Path, table: dict[str, np.ndarray], origin: geo
     When ``raw`` was read whole from an intact file that is unchanged since (``raw.source``), that
     file's records are copied byte for byte (:func:`~trackfusion.sensors.mcap_log.copy_log`: no
     re-encoding, no recompression); otherwise (e.g. the readable part of a damaged log) the raw
-    topics are written from the arrays of ``raw``."""
+    topics are written from the arrays of ``raw``. ``copy``: that copy's first part, already
+    written (:func:`start_raw_copy`); only the rest is written here (the same bytes)."""
     epoch_ns = survey_epoch_ns(raw.metadata) if raw is not None else 0
     extra = trajectory_channels(table, origin, max_rate_hz, epoch_ns)
     if geometry is not None and all(c in geometry for c in RAIL_COLUMNS) and geometry["chainage_m"].size > 1:
         extra += rail_channels(geometry, origin, int(extra[0].log_time_ns[0]))
-    if raw is not None and raw.source is not None and raw.source.unchanged():
+    if copy is not None:
+        finish_copy(path, copy, extra)
+    elif raw is not None and raw.source is not None and raw.source.unchanged():
         copy_log(path, raw.source, extra, time_offset_ns=epoch_ns)
     else:
         write_log(path, raw if raw is not None else SensorLog(), extra, time_offset_ns=epoch_ns)
+
+
+def start_raw_copy(folder: Path, raw: SensorLog | None, workers: int = 1) -> CopyHead | None:
+    """The first part of fused.mcap's copy of the raw log ``raw`` (its schemas, channels and
+    records on the survey's clock: :func:`~trackfusion.sensors.mcap_log.start_copy`), written to
+    :data:`RAW_COPY_NAME` in ``folder`` (that of fused.mcap); None when ``raw`` is not copied
+    (:func:`write_fused_mcap` then writes it from the arrays). ``workers``: threads."""
+    if raw is None or raw.source is None or not raw.source.unchanged():
+        return None
+    return start_copy(Path(folder) / RAW_COPY_NAME, raw.source, survey_epoch_ns(raw.metadata), workers)
+
+
+#: the file the first part of fused.mcap's copy of the raw log is written to (hidden; renamed
+#: fused.mcap when the rest is written)
+RAW_COPY_NAME = ".fused.mcap.raw"
 
 
 def survey_epoch_ns(metadata: dict, source: str = "log") -> int:

@@ -436,15 +436,15 @@ class RawSource:
         return (st.st_size, st.st_mtime_ns) == (self.size, self.mtime_ns)
 
 
-def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0
+def _copied_records(out: _Output, source: RawSource, offset_ns: int = 0, workers: int = 2
                     ) -> tuple[list[MetadataIndex], list[ChunkIndex]]:
     """Copy the source's metadata, chunk and message index records unchanged (chunks stay
     compressed; message indexes are relative to their chunk, so they stay valid); returns the
     metadata and chunk indexes of the copies. With ``offset_ns``, every message's log and
-    publish time moves by it (:func:`_shifted_records`)."""
+    publish time moves by it (:func:`_shifted_records`, on ``workers`` threads)."""
     metadata_indexes: list[MetadataIndex] = []
     chunk_indexes: list[ChunkIndex] = []
-    for op, start, rec in _shifted_records(_source_records(source), offset_ns):
+    for op, start, rec in _shifted_records(_source_records(source), offset_ns, workers):
         if op == _METADATA:
             name = _Cursor(rec[9:], start + 9).text()
             metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
@@ -483,12 +483,12 @@ def _source_records(source: RawSource) -> Iterator[tuple[int, int, bytes]]:
 SHIFT_WINDOW_CHUNKS = 8
 
 
-def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int
+def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int, workers: int = 2
                      ) -> Iterator[tuple[int, int, bytes]]:
     """``records`` (:func:`_source_records`) with every message's log and publish time moved by
     ``offset_ns``: the chunks (:func:`_shifted_chunk`) and message indexes
     (:func:`_shifted_message_index`) of a window of :data:`SHIFT_WINDOW_CHUNKS` chunks at a time
-    on two threads (inflating and compressing release the GIL), in their order. Unchanged
+    on ``workers`` threads (inflating and compressing release the GIL), in their order. Unchanged
     without an offset."""
     if not offset_ns:
         yield from records
@@ -506,9 +506,9 @@ def _shifted_records(records: Iterable[tuple[int, int, bytes]], offset_ns: int
         window.append(item)
         chunks += item[0] == _CHUNK
         if chunks == SHIFT_WINDOW_CHUNKS:
-            yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
+            yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=workers))
             window, chunks = [], 0
-    yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=2))
+    yield from ((op, start, rec) for (op, start, _), rec in thread_map(shift, window, workers=workers))
 
 
 def _shifted_chunk(rec: bytes, offset_ns: int, at: int) -> bytes:
@@ -581,42 +581,68 @@ def _write_chunks(out: _Output, merged: _Merged) -> list[ChunkIndex]:
     return chunk_indexes
 
 
-def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]],
-                source: RawSource | None = None, source_offset_ns: int = 0) -> None:
-    """The whole file: magic, header, schemas, channels, metadata, chunks, data end, summary, footer.
-    With ``source``, its schemas and channels (same ids) and records come first, copied unchanged;
-    ``streams`` then take the next ids."""
-    out = _Output(fh)
+@dataclass
+class _Head:
+    """What the first part of a file (:func:`_write_head`) put in it, for the rest
+    (:func:`_write_tail`): the schema and channel records (the summary repeats them), the
+    copied metadata and chunk indexes, and the copied channels' message counts."""
+
+    schemas: list[Schema] = field(default_factory=list)
+    channels: list[Channel] = field(default_factory=list)
+    metadata_indexes: list[MetadataIndex] = field(default_factory=list)
+    chunk_indexes: list[ChunkIndex] = field(default_factory=list)
+    message_counts: dict[int, int] = field(default_factory=dict)
+
+
+def _write_head(out: _Output, source: RawSource | None = None, offset_ns: int = 0, workers: int = 2) -> _Head:
+    """Magic and header, then with ``source`` its schemas, channels (same ids) and records, copied
+    (:func:`_copied_records`; ``workers``: threads moving its chunks by ``offset_ns``)."""
     out.put(MAGIC)
     out.put(_record(Header(profile="", library=LIBRARY)))
-    schema_recs = [Schema(id=i, name=n, encoding=e, data=d) for i, (n, e, d) in sorted((source.schemas
-                                                                                       if source else {}).items())]
-    channel_recs = [Channel(id=i, schema_id=sid, topic=t, message_encoding=e, metadata=m)
-                    for i, (sid, t, e, m) in sorted((source.channels if source else {}).items())]
+    if source is None:
+        return _Head()
+    head = _Head([Schema(id=i, name=n, encoding=e, data=d) for i, (n, e, d) in sorted(source.schemas.items())],
+                 [Channel(id=i, schema_id=sid, topic=t, message_encoding=e, metadata=m)
+                  for i, (sid, t, e, m) in sorted(source.channels.items())],
+                 message_counts=dict(source.message_counts))
+    for rec in head.schemas + head.channels:
+        out.put(_record(rec))
+    head.metadata_indexes, head.chunk_indexes = _copied_records(out, source, offset_ns, workers)
+    return head
+
+
+def _write_tail(out: _Output, head: _Head, streams: list[_Stream], metadata: list[tuple[str, dict[str, str]]]) -> None:
+    """The rest of a file after :func:`_write_head`: the ``streams``' schemas (one record per name,
+    the head's reused) and channels (the ids after the head's), ``metadata``, the streams' chunks,
+    data end, summary, footer."""
+    schema_recs, channel_recs = list(head.schemas), list(head.channels)
     next_schema = max((r.id for r in schema_recs), default=0) + 1
     first_channel = max((r.id for r in channel_recs), default=0) + 1
     # one schema record per name: a stream whose schema name the file has already (the source's, or
     # an earlier stream's) uses that record, so that a viewer never meets two schemas of one name
     schema_ids: dict[str, int] = {r.name: r.id for r in schema_recs}
+    new_recs: list = []
     for i, s in enumerate(streams):
         if s.schema not in schema_ids:
             data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
             schema_ids[s.schema] = next_schema
             next_schema += 1
-            schema_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding,
-                                      data=data))
-        channel_recs.append(Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
-                                    message_encoding=s.encoding, metadata={}))
-    for rec in schema_recs + channel_recs:
+            new_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding, data=data))
+    new_schemas = list(new_recs)
+    new_recs += [Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
+                         message_encoding=s.encoding, metadata={}) for i, s in enumerate(streams)]
+    for rec in new_recs:
         out.put(_record(rec))
-    metadata_indexes, chunk_indexes = _copied_records(out, source, source_offset_ns) if source else ([], [])
+    schema_recs += new_schemas
+    channel_recs += new_recs[len(new_schemas):]
+    metadata_indexes, chunk_indexes = list(head.metadata_indexes), list(head.chunk_indexes)
     for name, data in metadata:
         rec = _record(Metadata(name=name, metadata=data))
         metadata_indexes.append(MetadataIndex(offset=out.put(rec), length=len(rec), name=name))
     chunk_indexes += _write_chunks(out, _merge(streams, first_channel))
     out.put(_record(DataEnd(data_section_crc=out.crc)), in_crc=False)
 
-    counts = dict(source.message_counts) if source else {}
+    counts = dict(head.message_counts)
     counts.update({first_channel + i: int(s.log_time_ns.size) for i, s in enumerate(streams)})
     timed = [c for c in chunk_indexes if c.uncompressed_size]
     stats = Statistics(
@@ -624,8 +650,12 @@ def _write_mcap(fh, streams: list[_Stream], metadata: list[tuple[str, dict[str, 
         attachment_count=0, metadata_count=len(metadata_indexes), chunk_count=len(chunk_indexes),
         message_start_time=min((c.message_start_time for c in timed), default=0),
         message_end_time=max((c.message_end_time for c in timed), default=0), channel_message_counts=counts)
-    groups = [(_SCHEMA, schema_recs), (_CHANNEL, channel_recs), (_STATISTICS, [stats]),
-              (_CHUNK_INDEX, chunk_indexes), (_METADATA_INDEX, metadata_indexes)]
+    _write_summary(out, [(_SCHEMA, schema_recs), (_CHANNEL, channel_recs), (_STATISTICS, [stats]),
+                         (_CHUNK_INDEX, chunk_indexes), (_METADATA_INDEX, metadata_indexes)])
+
+
+def _write_summary(out: _Output, groups: list[tuple[int, list]]) -> None:
+    """The summary section of the record ``groups`` (opcode, records), its offsets, footer and magic."""
     summary_start = out.pos
     summary, offsets = [], []
     for opcode, recs in groups:
@@ -668,7 +698,8 @@ def write_log(path: str | Path, log: SensorLog, extra: Iterable[ExtraChannel] = 
     streams = _streams(log, encoding, int(time_offset_ns)) + _extra_streams(extra)
     metadata = _metadata_records(log.metadata)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _write_mcap(fh, streams, metadata)
+        out = _Output(fh)
+        _write_tail(out, _write_head(out), streams, metadata)
 
 
 def _extra_streams(extra: Iterable[ExtraChannel]) -> list[_Stream]:
@@ -683,11 +714,56 @@ def copy_log(path: str | Path, source: RawSource, extra: Iterable[ExtraChannel] 
     as :func:`write_log`. Atomic and byte-identical for identical input. Raises
     :class:`SensorDataError` when the file changed since it was read. ``time_offset_ns`` [ns]
     moves the copied messages' log and publish times (``fused.mcap`` on the survey's absolute
-    clock): their chunks are inflated, patched and compressed again, payloads untouched."""
+    clock): their chunks are inflated, patched and compressed again, payloads untouched.
+    The same bytes as :func:`start_copy` then :func:`finish_copy`."""
+    with atomic_path(path) as tmp:
+        finish_copy(tmp, start_copy(tmp, source, time_offset_ns), extra)
+
+
+@dataclass
+class CopyHead:
+    """The first part of :func:`copy_log` (:func:`start_copy`) in the file ``path``: its first
+    ``pos`` bytes, the data section's CRC-32 over them ``crc``, and what the rest needs of them."""
+
+    path: Path
+    pos: int
+    crc: int
+    head: _Head
+
+
+def start_copy(path: str | Path, source: RawSource, time_offset_ns: int = 0, workers: int = 2) -> CopyHead:
+    """Write the first part of :func:`copy_log` (same arguments) to ``path``: magic, header and
+    the source's schemas, channels and records, the longest part of the copy, which needs nothing
+    of the extra channels (a run begins it while it smooths). ``workers``: threads that move the
+    chunks onto the other clock (the same bytes for any number). The file is removed again on an
+    error; :func:`finish_copy` writes the rest."""
     if not source.unchanged():
         raise SensorDataError(f"{source.path}: changed since it was read; read it again")
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _write_mcap(fh, _extra_streams(extra), [], source, int(time_offset_ns))
+    try:
+        with open(path, "wb") as fh:
+            out = _Output(fh)
+            head = _write_head(out, source, int(time_offset_ns), workers)
+        return CopyHead(Path(path), out.pos, out.crc, head)
+    except BaseException:
+        Path(path).unlink(missing_ok=True)
+        raise
+
+
+def finish_copy(path: str | Path, copy: CopyHead, extra: Iterable[ExtraChannel] = ()) -> None:
+    """Write the rest of :func:`copy_log` after ``copy`` (:func:`start_copy`): the ``extra``
+    channels and the summary appended to its file, which is then renamed ``path`` (in the same
+    folder: atomic); the file is removed on an error."""
+    try:
+        with open(copy.path, "r+b") as fh:
+            fh.seek(copy.pos)
+            fh.truncate()
+            out = _Output(fh)
+            out.pos, out.crc = copy.pos, copy.crc
+            _write_tail(out, copy.head, _extra_streams(extra), [])
+        os.replace(copy.path, path)
+    except BaseException:
+        copy.path.unlink(missing_ok=True)
+        raise
 
 
 # =================================================================================================
