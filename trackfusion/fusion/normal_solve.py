@@ -107,7 +107,8 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
     order = np.argsort(last, kind="stable")
     conds, frontal = [conds[i] for i in order], [frontal[i] for i in order]
     blocks = []
-    for (cond, R), (start, stop, parents) in zip(conds, frontal):
+    seps = _separator_rows([parents for _, _, parents in frontal], offset)
+    for (cond, R), (start, stop, _), sep in zip(conds, frontal, seps):
         S = np.array(cond.S())
         model = cond.get_model()
         if model is not None and not model.isUnit():  # a constrained factor's elimination keeps its rows' sigmas
@@ -115,10 +116,21 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
             if not np.all(sigmas > 0.0):
                 raise FusionError("normal solve: a hard constraint (a zero sigma) in the factor graph")
             R, S = R / sigmas[:, None], S / sigmas[:, None]
-        sep = np.array([r for k in parents for r in range(offset[k], offset[k] + key_dim(k))], np.int64)
         blocks.append((start, stop, sep, R, S))
     R_inv = _inverses([b[3] for b in blocks])
     return TreeFactor(offset, size, [_Clique(a, b, sep, r, S) for (a, b, sep, _, S), r in zip(blocks, R_inv)])
+
+
+def _separator_rows(parents: list[list[int]], offset: dict[int, int]) -> list[np.ndarray]:
+    """Per clique, the rows (n_s,) of its separator keys ``parents`` (each key's :func:`key_dim`
+    rows from its ``offset``), made for all cliques at once."""
+    flat = [k for keys in parents for k in keys]
+    starts = np.fromiter((offset[k] for k in flat), np.int64, len(flat))
+    dims = np.fromiter((key_dim(k) for k in flat), np.int64, len(flat))
+    first = np.cumsum(dims) - dims  # each key's first row in the concatenation
+    rows = np.repeat(starts - first, dims) + np.arange(int(dims.sum()), dtype=np.int64)
+    ends = np.concatenate(([0], np.cumsum(dims)))[np.cumsum([len(keys) for keys in parents])]
+    return np.split(rows, ends[:-1])
 
 
 def _inverses(R: list[np.ndarray]) -> list[np.ndarray]:
