@@ -44,6 +44,24 @@ def test_a_task_runs_in_another_process_and_hands_back_its_result():
     assert pid != os.getpid() and np.array_equal(value, [0.0, 2.0, 4.0])
 
 
+def _niceness():
+    return os.getpid(), os.nice(0)
+
+
+def test_an_idle_task_runs_at_the_lowest_priority_in_its_child_only(monkeypatch):
+    """``submit_idle`` (fused.mcap's copy of the raw log while the run smooths): its child at nice 19,
+    the submitting process untouched; run in turn (no fork) it keeps the caller's priority."""
+    own = os.nice(0)
+    with ForkedTasks() as tasks:
+        task = tasks.submit_idle("copying", _niceness)
+    pid, niceness = task.result()
+    assert pid != os.getpid() and niceness == 19 and os.nice(0) == own
+    monkeypatch.setattr(forked, "ENABLED", False)
+    with ForkedTasks() as tasks:
+        task = tasks.submit_idle("copying", _niceness)
+    assert task.result() == (os.getpid(), own)
+
+
 def test_the_error_of_a_child_is_raised_in_the_parent_as_it_was():
     with pytest.raises(SensorDataError, match=r"^some\.csv: record 7: bad value$"):
         with ForkedTasks() as tasks:

@@ -174,6 +174,11 @@ class ForkedTasks:
         task.pid, task._fd = pid, read_fd
         return task
 
+    def submit_idle(self, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> ForkedTask:
+        """:meth:`submit` for work that should take only the CPU time the run leaves free: the
+        child runs at the lowest priority (``nice`` 19); run here (no fork), at this process's."""
+        return self.submit(what, _at_lowest_priority, os.getpid(), fn, *args, **kwargs)
+
     def wait(self) -> None:
         """Wait for every task; raises the first failure (in the order submitted)."""
         first = None
@@ -200,6 +205,13 @@ class ForkedTasks:
             self.kill()
         else:
             self.wait()
+
+
+def _at_lowest_priority(submitter_pid: int, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)``, in a child of the process ``submitter_pid`` at the lowest priority."""
+    if os.getpid() != submitter_pid:
+        os.nice(19)
+    return fn(*args, **kwargs)
 
 
 def _die_with_parent(parent_pid: int) -> None:

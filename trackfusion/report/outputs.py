@@ -44,15 +44,15 @@ def write_fused(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry
 def start_raw_copy(background: ForkedTasks, stage: Path, raw, cfg) -> ForkedTask | None:
     """The first part of fused.mcap's copy of the raw log ``raw`` (:func:`~trackfusion.sensors.fused.start_raw_copy`:
     most of fused.mcap's writing, and it needs nothing of the estimate) begun in a forked child of
-    ``background`` on one thread, while the run smooths on the other CPU (its one-batch solve
-    mostly uses one); None when fused.mcap is off or ``raw`` has no file to copy. (A run in
+    ``background`` on one thread at the lowest priority, while the run smooths on the other CPU
+    (its one-batch solve mostly uses one; where both are busy, the copy waits); None when fused.mcap is off or ``raw`` has no file to copy. (A run in
     chunks does not begin it: its child would keep the log's pages that the chunks free.) The task's
     result goes to :func:`write_table_outputs` or :func:`start_table_outputs`; the bytes are
     those of the copy made there."""
     if not cfg.outputs.fused_mcap or raw is None or raw.source is None:
         return None
     from ..sensors.fused import start_raw_copy as start
-    return background.submit("copying the raw log into fused.mcap", start, stage, raw, 1)
+    return background.submit_idle("copying the raw log into fused.mcap", start, stage, raw, 1)
 
 
 def _begun(raw_copy: ForkedTask | None):
