@@ -846,8 +846,9 @@ class OutputSources:
     None when it is only on disk (a run in chunks); ``geometry``: the track geometry or None;
     ``raw``: the input log as read, whose topics fused.mcap carries; ``fused_table``: the
     trajectory rows fused.mcap shows when not ``table`` (a long run's rows at
-    :data:`~trackfusion.sensors.fused.FUSED_POSE_RATE_HZ`); ``early``: the forked task already writing geometry.csv and
-    drawing the table figures, fused.mcap in another (:func:`~trackfusion.report.outputs.start_table_outputs`);
+    :data:`~trackfusion.sensors.fused.FUSED_POSE_RATE_HZ`); ``early``: the forked task already
+    writing geometry.csv and drawing the table figures, fused.mcap in another
+    (:func:`~trackfusion.report.outputs.start_table_outputs`);
     ``background``: the run's forked tasks, all waited for (and their failures raised) before
     the files are listed; ``raw_copy``: the task that began fused.mcap's copy of ``raw``
     (:func:`~trackfusion.report.outputs.start_raw_copy`; None: none)."""

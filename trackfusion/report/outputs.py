@@ -23,10 +23,10 @@ from ..forked import ForkedTask, ForkedTasks, can_fork
 def write_table_outputs(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry=None, raw=None,
                         draw: bool = False, raw_copy: ForkedTask | None = None) -> dict[str, str]:
     """Write ``geometry.csv`` (+ sidecar, when ``geometry``) and ``fused.mcap`` (when
-    ``cfg.outputs.fused_mcap``: the rows of ``table`` at most at ``sensors.fused.FUSED_POSE_RATE_HZ``, the rails, the raw
-    log ``raw``, whose copy ``raw_copy`` began, :func:`start_raw_copy`) into ``stage``; with ``draw``
-    (and ``cfg.outputs.report``) returns the report's figures of ``table`` and the geometry
-    (:func:`~trackfusion.report.html.table_images`), else {}."""
+    ``cfg.outputs.fused_mcap``: the rows of ``table`` at most at ``sensors.fused.FUSED_POSE_RATE_HZ``,
+    the rails, the raw log ``raw``, whose copy ``raw_copy`` began, :func:`start_raw_copy`) into
+    ``stage``; with ``draw`` (and ``cfg.outputs.report``) returns the report's figures of ``table``
+    and the geometry (:func:`~trackfusion.report.html.table_images`), else {}."""
     write_fused(stage, table, origin, cfg, geometry, raw, _begun(raw_copy))
     return write_geometry_and_figures(stage, table, origin, cfg, geometry, draw)
 
@@ -42,13 +42,13 @@ def write_fused(stage: Path, table: dict[str, np.ndarray], origin, cfg, geometry
 
 
 def start_raw_copy(background: ForkedTasks, stage: Path, raw, cfg) -> ForkedTask | None:
-    """The first part of fused.mcap's copy of the raw log ``raw`` (:func:`~trackfusion.sensors.fused.start_raw_copy`:
-    most of fused.mcap's writing, and it needs nothing of the estimate) begun in a forked child of
-    ``background`` on one thread at the lowest priority, while the run smooths on the other CPU
-    (its one-batch solve mostly uses one; where both are busy, the copy waits); None when fused.mcap is off or ``raw`` has no file to copy. (A run in
-    chunks does not begin it: its child would keep the log's pages that the chunks free.) The task's
-    result goes to :func:`write_table_outputs` or :func:`start_table_outputs`; the bytes are
-    those of the copy made there."""
+    """Begin fused.mcap's copy of the raw log ``raw`` (:func:`~trackfusion.sensors.fused.start_raw_copy`:
+    most of fused.mcap's writing, and it needs nothing of the estimate) in a forked child of
+    ``background``, on one thread at the lowest priority: the run smooths on the other CPU (its
+    one-batch solve mostly uses one), and where both are busy the copy waits. None when fused.mcap
+    is off or ``raw`` has no file to copy. (A run in chunks does not begin it: its child would keep
+    the log's pages that the chunks free.) The task's result goes to :func:`write_table_outputs`
+    or :func:`start_table_outputs`; the bytes are those of the copy made there."""
     if not cfg.outputs.fused_mcap or raw is None or raw.source is None:
         return None
     from ..sensors.fused import start_raw_copy as start
@@ -79,8 +79,8 @@ def write_geometry_and_figures(stage: Path, table: dict[str, np.ndarray], origin
 def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, np.ndarray], origin, cfg,
                         geometry=None, raw=None, raw_copy: ForkedTask | None = None) -> ForkedTask | None:
     """:func:`write_table_outputs` (with the figures) in forked children of ``background``: one
-    writes fused.mcap (the rest of the raw log's copy ``raw_copy``, or all of it), the other geometry.csv and the
-    figures; returns the second's task (result: the figures), or None when children cannot be
+    writes fused.mcap (the rest of the raw log's copy ``raw_copy``, or all of it), the other
+    geometry.csv and the figures; returns the second's task (result: the figures), or None when children cannot be
     forked (then the outputs are written in turn by ``pipeline.write_outputs``). ``background``
     waits for both."""
     if not can_fork():
