@@ -39,9 +39,9 @@ def last_linearisation(prob):
     seen: dict = {}
     real = smoother._sigma_covariances
 
-    def keep(problem_, sol, gfg, partition, kf, keys, station_keys=None):
+    def keep(problem_, sol, gfg, partition, kf, keys, *rest):
         seen.update(gfg=sol.gfg, keys=keys, kf=kf)
-        return real(problem_, sol, gfg, partition, kf, keys, station_keys)
+        return real(problem_, sol, gfg, partition, kf, keys, *rest)
 
     smoother._sigma_covariances = keep
     try:
