@@ -88,8 +88,9 @@ def start_table_outputs(background: ForkedTasks, stage: Path, table: dict[str, n
     if cfg.outputs.report:
         from .figures import preload
         preload()  # imported once here, not in every child
-    if cfg.outputs.fused_mcap:
+    figures = background.submit("writing geometry.csv and the report figures", write_geometry_and_figures,
+                                stage, table, origin, cfg, geometry, draw=True)
+    if cfg.outputs.fused_mcap:  # after the figures' child: it may wait here for the copy's first part
         background.submit("writing fused.mcap", write_fused, stage, table, origin, cfg, geometry, raw,
                           _begun(raw_copy))
-    return background.submit("writing geometry.csv and the report figures", write_geometry_and_figures,
-                             stage, table, origin, cfg, geometry, draw=True)
+    return figures

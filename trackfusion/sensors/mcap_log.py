@@ -392,8 +392,9 @@ def _message_indexes(m: _Merged, lengths: np.ndarray, start: int, stop: int, chu
 class _Output:
     """A file being written: tracks the byte position and the running CRC-32 of the data section."""
 
-    def __init__(self, fh):
-        self.fh, self.pos, self.crc = fh, 0, 0
+    def __init__(self, fh, pos: int = 0, crc: int = 0):
+        """``pos``, ``crc``: of the bytes the file already holds (a file being continued)."""
+        self.fh, self.pos, self.crc = fh, pos, crc
 
     def put(self, data: bytes, in_crc: bool = True) -> int:
         """Write ``data``; returns the offset it was written at."""
@@ -621,20 +622,19 @@ def _write_tail(out: _Output, head: _Head, streams: list[_Stream], metadata: lis
     # one schema record per name: a stream whose schema name the file has already (the source's, or
     # an earlier stream's) uses that record, so that a viewer never meets two schemas of one name
     schema_ids: dict[str, int] = {r.name: r.id for r in schema_recs}
-    new_recs: list = []
-    for i, s in enumerate(streams):
+    new_schemas: list[Schema] = []
+    for s in streams:
         if s.schema not in schema_ids:
             data = s.schema_data if s.schema_data is not None else schemas.schema_bytes(s.schema)
             schema_ids[s.schema] = next_schema
             next_schema += 1
-            new_recs.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding, data=data))
-    new_schemas = list(new_recs)
-    new_recs += [Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
-                         message_encoding=s.encoding, metadata={}) for i, s in enumerate(streams)]
-    for rec in new_recs:
+            new_schemas.append(Schema(id=schema_ids[s.schema], name=s.schema, encoding=s.schema_encoding, data=data))
+    new_channels = [Channel(id=first_channel + i, schema_id=schema_ids[s.schema], topic=s.topic,
+                            message_encoding=s.encoding, metadata={}) for i, s in enumerate(streams)]
+    for rec in new_schemas + new_channels:
         out.put(_record(rec))
     schema_recs += new_schemas
-    channel_recs += new_recs[len(new_schemas):]
+    channel_recs += new_channels
     metadata_indexes, chunk_indexes = list(head.metadata_indexes), list(head.chunk_indexes)
     for name, data in metadata:
         rec = _record(Metadata(name=name, metadata=data))
@@ -757,9 +757,7 @@ def finish_copy(path: str | Path, copy: CopyHead, extra: Iterable[ExtraChannel] 
         with open(copy.path, "r+b") as fh:
             fh.seek(copy.pos)
             fh.truncate()
-            out = _Output(fh)
-            out.pos, out.crc = copy.pos, copy.crc
-            _write_tail(out, copy.head, _extra_streams(extra), [])
+            _write_tail(_Output(fh, copy.pos, copy.crc), copy.head, _extra_streams(extra), [])
         os.replace(copy.path, path)
     except BaseException:
         copy.path.unlink(missing_ok=True)
