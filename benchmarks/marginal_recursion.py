@@ -1,5 +1,6 @@
-"""Benchmark (a lead, not kept): the sigma parts' pose marginals by one pass down each part's
-Bayes tree, against GTSAM's per-key marginals, for time and exactness.
+"""Benchmark: the sigma parts' pose marginals by one pass down each part's Bayes tree
+(fusion/tree_marginals.py, the default where the cliques are wide), against GTSAM's per-key
+marginals (the default elsewhere), for time and exactness.
 
 Usage: python benchmarks/marginal_recursion.py [--scenario bridge|open-track] [--seed N]
        [--check-every N] [--out FILE]
@@ -14,12 +15,12 @@ times per part:
 
 - ``tree_s``: the part's Bayes tree (COLAMD, multifrontal QR), as the smoother makes it;
 - ``gtsam_s``: GTSAM's marginals of the part's sigma keyframes (the smoother's way);
-- ``qr_pass_s``: one pass from the root down in square-root information form: each clique's
-  ``[[R, S], [0, M]]`` (``M``: the square-root information of its separator's marginal) gives
-  its children's ``M`` by a QR with their separator's columns last, and a wanted pose's
-  covariance by one triangular solve. GTSAM's Python wrapper has no way to a clique's children,
-  so the cliques are visited in reverse elimination order of their last frontal key, each after
-  its parent (as fusion/normal_solve.py ``tree_factor`` orders them);
+- ``qr_pass_s``: one pass from the root down in square-root information form
+  (fusion/tree_marginals.py): each clique's ``[[R, S], [0, M]]`` (``M``: the square-root
+  information of its separator's marginal) gives its children's ``M`` by a QR with their
+  separator's columns last, and a wanted pose's covariance by one triangular solve; the part
+  takes it when its cliques are wider than ``WIDE_CLIQUE_COLUMNS`` on average
+  (``mean_clique_columns``);
 - ``cov_pass_s``: the same pass in covariance form (``Sigma_ff = R^-1 R^-T + W Sigma_ss W^T``,
   ``W = R^-1 S``), the form fusion/normal_solve.py's docstring found unstable.
 
@@ -48,7 +49,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def sigma_part_graphs(prob):
     """Smooth ``prob``; return, per sigma part, (its graph: the part's factors and the other
-    parts' reduced factors, its sigma keyframes' pose keys, every key's dimension)."""
+    parts' reduced factors, its sigma keyframes' pose keys)."""
     from trackfusion.fusion import partitioned, smoother
     seen: dict = {}
     real = smoother.part_marginal_covariances
@@ -64,120 +65,48 @@ def sigma_part_graphs(prob):
         smoother.part_marginal_covariances = real
     made, gfg = seen["made"], seen["gfg"]
     layout = made.layout
-    zero = gfg.gradientAtZero()
-    dims = {int(k): zero.dim(k) for k in gfg.keyVector()}
     out = []
     for p in range(len(made.reduced)):
         graph = partitioned._union([layout.part_graph(gfg, p)] + [r for q, r in enumerate(made.reduced) if q != p])
-        out.append((graph, [int(k) for k in seen["keys"] if layout.home[int(k)] == p], dims))
+        out.append((graph, [int(k) for k in seen["keys"] if layout.home[int(k)] == p]))
     return out
 
 
-def cliques_top_down(tree, ordering, dims: dict[int, int]) -> list:
-    """(clique, conditional, keys, number of frontal keys) of every clique of ``tree``, each
-    after its parent."""
-    seen: set[int] = set()
-    out = []
-    for i in range(ordering.size() - 1, -1, -1):
-        key = ordering.at(i)
-        if key in seen:
-            continue
-        clique = tree[key]
-        cond = clique.conditional()
-        keys, rows, n_f, size = cond.keys(), cond.R().shape[0], 0, 0
-        while size < rows:
-            size, n_f = size + dims[keys[n_f]], n_f + 1
-            seen.add(keys[n_f - 1])
-        out.append((clique, cond, keys, n_f))
-    return out
+def qr_pass(tree, ordering, keys: list[int]) -> dict[int, np.ndarray]:
+    """The pass in square-root information form (fusion/tree_marginals.py)."""
+    from trackfusion.fusion.tree_marginals import cliques_top_down, marginal_covariances
+    return marginal_covariances(cliques_top_down(tree, ordering), keys)
 
 
-def _offsets(keys, dims: dict[int, int]) -> tuple[dict[int, int], int]:
-    offset, size = {}, 0
-    for k in keys:
-        offset[k], size = size, size + dims[k]
-    return offset, size
-
-
-def _rows(keys, offset: dict[int, int], dims: dict[int, int]) -> list[int]:
-    return [j for k in keys for j in range(offset[k], offset[k] + dims[k])]
-
-
-def _whitened(cond) -> tuple[np.ndarray, np.ndarray]:
-    """The conditional's R and S with unit noise (a constrained model's elimination keeps sigmas)."""
-    R, S = np.array(cond.R()), np.array(cond.S())
-    model = cond.get_model()
-    if model is not None and not model.isUnit():
-        sigmas = np.asarray(model.sigmas())[:, None]
-        R, S = R / sigmas, S / sigmas
-    return R, S
-
-
-def _marginal_root(parent_J: np.ndarray, rows: list[int]) -> np.ndarray:
-    """Upper-triangular square-root information of the variables at ``rows`` of ``parent_J``
-    (the others eliminated by QR)."""
-    from scipy.linalg.lapack import dgeqrf
-    keep = np.ones(parent_J.shape[0], bool)
-    keep[rows] = False
-    n = int(keep.sum())
-    A = np.empty(parent_J.shape, order="F")  # LAPACK's own layout: no copy on the call
-    A[:, :n], A[:, n:] = parent_J[:, keep], parent_J[:, rows]
-    qr = dgeqrf(A, lwork=64 * A.shape[0], overwrite_a=1)[0]  # R above the diagonal
-    return np.triu(qr[n:, n:])
-
-
-def qr_pass(tree, ordering, dims: dict[int, int], wanted: set[int]) -> dict[int, np.ndarray]:
-    """Marginal covariances of ``wanted`` keys, one pass down in square-root information form."""
-    from scipy.linalg import solve_triangular
-    out, held = {}, {}
-    for clique, cond, keys, n_f in cliques_top_down(tree, ordering, dims):
-        offset, size = _offsets(keys, dims)
-        R, S = _whitened(cond)
-        f = R.shape[0]
-        J = np.zeros((size, size))
-        J[:f, :f], J[:f, f:] = R, S
-        if n_f < len(keys):
-            parent = held[clique.parent().conditional().firstFrontalKey()]
-            J[f:, f:] = _marginal_root(parent[0], _rows(keys[n_f:], parent[1], dims))
-            parent[2] -= 1
-        for k in keys[:n_f]:
-            if k in wanted:
-                unit = np.zeros((size, dims[k]))
-                unit[offset[k]:offset[k] + dims[k]] = np.eye(dims[k])
-                rows = solve_triangular(J, unit, trans="T", check_finite=False)
-                out[k] = rows.T @ rows
-        if clique.nrChildren():
-            held[keys[0]] = [J, offset, clique.nrChildren()]
-        held = {c: h for c, h in held.items() if h[2] > 0}
-    return out
-
-
-def cov_pass(tree, ordering, dims: dict[int, int], wanted: set[int]) -> dict[int, np.ndarray]:
+def cov_pass(tree, ordering, keys: list[int]) -> dict[int, np.ndarray]:
     """The same covariances, one pass down in covariance form."""
-    out, held = {}, {}
-    for clique, cond, keys, n_f in cliques_top_down(tree, ordering, dims):
-        offset, size = _offsets(keys, dims)
-        R, S = _whitened(cond)
+    from trackfusion.fusion.normal_solve import key_dim
+    from trackfusion.fusion.tree_marginals import cliques_top_down
+    wanted, out, held = set(keys), {}, {}
+    for c in cliques_top_down(tree, ordering):
+        offset, size = {}, 0
+        for k in c.keys:
+            offset[k], size = size, size + key_dim(k)
+        R, S = c.whitened()
         f = R.shape[0]
         R_inv = np.linalg.inv(R)
         cov = np.empty((size, size))
         cov[:f, :f] = R_inv @ R_inv.T
-        if n_f < len(keys):
-            parent = held[clique.parent().conditional().firstFrontalKey()]
-            rows = _rows(keys[n_f:], parent[1], dims)
+        if c.parent is not None:
+            parent = held[c.parent]
+            rows = [j for k in c.keys[c.frontal:] for j in range(parent[1][k], parent[1][k] + key_dim(k))]
             cov_ss = parent[0][np.ix_(rows, rows)]
             W = R_inv @ S
-            cov[:f, f:] = -W @ cov_ss
+            with np.errstate(over="ignore", invalid="ignore"):  # it overflows on the bridge
+                cov[:f, f:] = -W @ cov_ss
+                cov[:f, :f] += W @ cov_ss @ W.T
             cov[f:, :f] = cov[:f, f:].T
-            cov[:f, :f] += W @ cov_ss @ W.T
             cov[f:, f:] = cov_ss
-            parent[2] -= 1
-        for k in keys[:n_f]:
+        for k in c.keys[:c.frontal]:
             if k in wanted:
-                out[k] = cov[offset[k]:offset[k] + dims[k], offset[k]:offset[k] + dims[k]].copy()
-        if clique.nrChildren():
-            held[keys[0]] = [cov, offset, clique.nrChildren()]
-        held = {c: h for c, h in held.items() if h[2] > 0}
+                out[k] = cov[offset[k]:offset[k] + key_dim(k), offset[k]:offset[k] + key_dim(k)].copy()
+        if c.children:
+            held[c.keys[0]] = (cov, offset)
     return out
 
 
@@ -195,9 +124,10 @@ def worst_error(covs: dict[int, np.ndarray], exact: dict[int, np.ndarray]) -> fl
     return worst
 
 
-def measure_part(graph, keys: list[int], dims: dict[int, int], check_every: int) -> dict:
+def measure_part(graph, keys: list[int], check_every: int) -> dict:
     import gtsam
     from trackfusion.fusion.partitioned import joint_marginal_covariance, marginal_covariance
+    from trackfusion.fusion.tree_marginals import cliques_top_down
     ordering = gtsam.Ordering.ColamdGaussianFactorGraph(graph)
     row, covs = {"sigma_keyframes": len(keys)}, {}
     for name, method in (("gtsam", None), ("qr_pass", qr_pass), ("cov_pass", cov_pass)):
@@ -205,12 +135,12 @@ def measure_part(graph, keys: list[int], dims: dict[int, int], check_every: int)
         tree = graph.eliminateMultifrontal(ordering, gtsam.EliminateQR)
         t1 = time.perf_counter()
         covs[name] = {k: marginal_covariance(tree, k) for k in keys} if method is None \
-            else method(tree, ordering, dims, set(keys))
+            else method(tree, ordering, keys)
         row[f"{name}_s"] = round(time.perf_counter() - t1, 3)
         row["tree_s"] = round(t1 - t0, 3)
-    cliques = cliques_top_down(tree, ordering, dims)
+    cliques = cliques_top_down(tree, ordering)
     row["cliques"] = len(cliques)
-    row["mean_clique_columns"] = round(float(np.mean([sum(dims[k] for k in c[2]) for c in cliques])), 1)
+    row["mean_clique_columns"] = round(float(np.mean([c.columns for c in cliques])), 1)
     exact = {k: joint_marginal_covariance(graph, [k]) for k in keys[::check_every]}
     for name in covs:
         row[f"{name}_error"] = worst_error(covs[name], exact)
@@ -226,8 +156,8 @@ def main() -> None:
     args = ap.parse_args()
     prob = problem(args.scenario, 4, args.seed)
     parts = []
-    for p, (graph, keys, dims) in enumerate(sigma_part_graphs(prob)):
-        row = measure_part(graph, keys, dims, args.check_every)
+    for p, (graph, keys) in enumerate(sigma_part_graphs(prob)):
+        row = measure_part(graph, keys, args.check_every)
         parts.append(row)
         print(f"part {p}: " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()),
               flush=True)

@@ -119,6 +119,20 @@ def test_sigmas_equal_the_dense_inverse_in_parts(problem, monkeypatch):
     assert counts == [3]
 
 
+def test_sigmas_equal_the_dense_inverse_in_parts_by_one_pass_down_each_tree(problem, monkeypatch):
+    """The parts' pass down each tree (fusion/tree_marginals.py; the default where the cliques
+    are wide, as on the bridge's sigma parts) on every part of this run."""
+    from trackfusion.fusion import partitioned, tree_marginals
+    passes = []
+    real = tree_marginals.marginal_covariances
+    monkeypatch.setattr(tree_marginals, "WIDE_CLIQUE_COLUMNS", 0.0)
+    monkeypatch.setattr(partitioned, "marginal_covariances", lambda *a: passes.append(1) or real(*a))
+    monkeypatch.setattr(smoother, "usable_cpus", lambda: 1)  # every part here, where the passes are counted
+    monkeypatch.setattr(smoother, "MARGINAL_PART_S", (problem.imu.t_s[-1] - problem.imu.t_s[0]) / 3 + 0.5)
+    _check_against_dense(problem, monkeypatch)
+    assert len(passes) == 3
+
+
 def test_part_covariances_are_the_same_bits_on_any_number_of_processes(problem, monkeypatch):
     """The sigma columns' covariances dealt to 1, 2 or 3 processes (parts of a third of the run)
     are the same bits, and those of :class:`~trackfusion.fusion.partitioned.PartMarginals`."""
@@ -136,9 +150,10 @@ def test_part_covariances_are_the_same_bits_on_any_number_of_processes(problem, 
     assert partition.count == 3 and len(keys) > 30
     by_workers = [real(partition, gfg, keys, w)[0] for w in (1, 2, 3)]
     lazy = partitioned.part_marginals(partition, gfg)
+    home = lazy.layout.home
     for k in keys:
         assert all(np.array_equal(by_workers[0][k], other[k]) for other in by_workers[1:])
-        assert np.array_equal(by_workers[0][k], lazy.marginalCovariance(k))
+        assert np.array_equal(by_workers[0][k], lazy.covariances(home[int(k)], [k])[k])
 
 
 def test_the_converging_step_in_the_sigma_parts_hands_its_reductions_to_the_sigmas(problem, monkeypatch):

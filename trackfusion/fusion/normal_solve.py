@@ -19,8 +19,8 @@ Not for marginal covariances: their recursion from the root down (``Sigma_ff = R
 W Sigma_ss W^T``, ``W = R_f^-1 S``) amplifies rounding by ``W`` at every level; tried on a
 216 s GNSS-only survey's tree, the pose variances were wrong from the 70th second and negative
 by the 108th (GTSAM's shortcut marginals, fusion/partitioned.py, do not blow up). The same pass
-in square-root information form is exact to rounding but, in Python, slower than GTSAM's on the
-hour's trees (``benchmarks/marginal_recursion.py``, docs/solver_speed.md).
+in square-root information form is exact to rounding (fusion/tree_marginals.py, which the
+sigma parts take where their cliques are wide).
 """
 
 from __future__ import annotations

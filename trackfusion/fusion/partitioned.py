@@ -32,7 +32,10 @@ marginals recurse from the root down every clique on the way (each clique's sepa
 from its parent's), and along the tree of a whole hour's chain that recursion drifts, by up to
 0.4 % of a position sigma on the hour of ``benchmarks/speed.py`` against the exact marginal
 (every other variable eliminated first, QR), whichever of Cholesky or QR it uses; a part's tree
-is short enough to stay within 2e-7 of it.
+is short enough to stay within 2e-7 of it. Where a part's cliques are wide (the bridge's, with
+the stations and the wheel path's pairs in them), one pass down its tree in square-root
+information form gives all its covariances instead, exact to rounding and the cheaper there
+(fusion/tree_marginals.py, :meth:`PartMarginals.covariances`).
 
 Why hand-written: GTSAM has no partitioned solver in its Python wrapper; this is its partial
 elimination, applied per part.
@@ -47,6 +50,7 @@ import numpy as np
 
 from ..errors import FusionError
 from ..parallel import dask_client, groups_of, run_step, run_step_dask
+from .tree_marginals import cliques_top_down, is_wide, marginal_covariances
 
 _INDEX_MASK = (1 << 56) - 1
 
@@ -285,9 +289,9 @@ class PartWorker:
         return _back_substitute(self.held, self.interior, list(self.held), _unpack_values(given))
 
 
-def _eliminate_all(graph: gtsam.GaussianFactorGraph) -> gtsam.GaussianBayesTree:
+def _eliminate_all(graph: gtsam.GaussianFactorGraph, ordering: gtsam.Ordering | None = None) -> gtsam.GaussianBayesTree:
     try:
-        return graph.eliminateMultifrontal(gtsam.Ordering.ColamdGaussianFactorGraph(graph), gtsam.EliminateQR)
+        return graph.eliminateMultifrontal(ordering or gtsam.Ordering.ColamdGaussianFactorGraph(graph), gtsam.EliminateQR)
     except RuntimeError:
         raise FusionError("the factor graph is singular (a state no measurement determines)") from None
 
@@ -363,7 +367,7 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
 
     def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
         marginals = made if made is not None else PartMarginals(gfg, [_unpack(r) for r in packed], layout)
-        return {k: marginal_covariance(marginals, k) for p in group for k in by_part.get(p, [])}
+        return {k: v for p in group if p in by_part for k, v in marginals.covariances(p, by_part[p]).items()}
 
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
         return [r for group in per_group for r in group]
@@ -482,6 +486,7 @@ class PartMarginals:
                  partition: Partition | None = None):
         self._gfg, self._reduced, self._layout = gfg, reduced, layout
         self._trees: dict[int, gtsam.GaussianBayesTree] = {}
+        self._orderings: dict[int, gtsam.Ordering] = {}
         self.partition = partition  # the parts of the step that made it (None: not told)
 
     @property
@@ -498,8 +503,21 @@ class PartMarginals:
         p = self._layout.home[int(key)]
         if p not in self._trees:
             g = _union([self._layout.part_graph(self._gfg, p)] + [r for q, r in enumerate(self._reduced) if q != p])
-            self._trees[p] = _eliminate_all(g)
+            self._orderings[p] = gtsam.Ordering.ColamdGaussianFactorGraph(g)
+            self._trees[p] = _eliminate_all(g, self._orderings[p])
         return self._trees[p]
+
+    def covariances(self, part: int, keys: list[int]) -> dict[int, np.ndarray]:
+        """The marginal covariances of ``keys``, all of part ``part``: by one pass down the
+        part's tree where its cliques are wide (fusion/tree_marginals.py: exact to rounding, and
+        then the cheaper), else by GTSAM's per-key marginals (:func:`marginal_covariance`). The
+        choice follows the tree's structure only: the same on any machine."""
+        if not keys:
+            return {}
+        cliques = cliques_top_down(self.tree(keys[0]), self._orderings[part])
+        if is_wide(cliques):
+            return marginal_covariances(cliques, keys)
+        return {k: marginal_covariance(self, k) for k in keys}
 
     def marginalCovariance(self, key: int) -> np.ndarray:
         return self.tree(key).marginalCovariance(key)
