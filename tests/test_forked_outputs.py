@@ -62,6 +62,29 @@ def test_an_idle_task_runs_at_the_lowest_priority_in_its_child_only(monkeypatch)
     assert task.result() == (os.getpid(), own)
 
 
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+    return [info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"]
+
+
+def _blas_threads_in_child():
+    return os.getpid(), _blas_threads()
+
+
+def test_blas_runs_on_one_thread_in_the_block_and_its_forked_children_then_as_before():
+    """``one_blas_thread`` (the sigma parts' pass down each tree): numpy's BLAS on one thread here
+    and in a child forked meanwhile; its own thread count again after."""
+    before = _blas_threads()
+    assert before and max(before) >= 2  # numpy's OpenBLAS, threaded on this machine (else this tests nothing)
+    with forked.one_blas_thread():
+        assert _blas_threads() == [1] * len(before)
+        with ForkedTasks() as tasks:
+            task = tasks.submit("counting BLAS threads", _blas_threads_in_child)
+        pid, in_child = task.result()
+    assert pid != os.getpid() and in_child == [1] * len(before)
+    assert _blas_threads() == before
+
+
 def test_the_error_of_a_child_is_raised_in_the_parent_as_it_was():
     with pytest.raises(SensorDataError, match=r"^some\.csv: record 7: bad value$"):
         with ForkedTasks() as tasks:

@@ -27,12 +27,14 @@ every function runs at once in this process (the same results and errors, in tur
 :class:`ForkedPool` keeps a pool of forked workers for batches handed out while this process goes
 on (the log reader's decoding); :func:`thread_map` runs a function that releases the GIL (zstd
 compression) on two threads, results in order; :func:`other_threads_running` tells whether an
-exit must wait for threads.
+exit must wait for threads; :func:`one_blas_thread` holds BLAS to one thread while the work is
+one process per CPU.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import gc
 import multiprocessing
 import os
@@ -311,6 +313,20 @@ def result_of(submitted: Any) -> Any:
 
 _T = TypeVar("_T")
 _R = TypeVar("_R")
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS (numpy's and scipy's OpenBLAS, as loaded now) on one thread in this process, and in
+    the children it forks meanwhile, inside the ``with`` block; as before after it. For work done
+    one process per CPU on small matrices, where BLAS's own threads only take CPU from the other
+    processes: the sigma parts' pass down each tree (fusion/tree_marginals.py) took 3.3 s for a
+    bridge part in two processes with BLAS's threads, against 0.56 s. (A whole run under
+    ``OPENBLAS_NUM_THREADS=1`` measured 0-1 s faster on the bridge and the hour, within the
+    machine's noise: not applied.)"""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def thread_map(fn: Callable[[_T], _R], items: Iterable[_T], workers: int = 2) -> Iterator[tuple[_T, _R]]:

@@ -33,8 +33,8 @@ import gtsam
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dgeqrf
-from threadpoolctl import threadpool_limits
 
+from ..forked import one_blas_thread
 from .normal_solve import key_dim
 
 #: mean clique width (frontal and separator columns) from which this pass is the cheaper than
@@ -122,9 +122,7 @@ def marginal_covariances(cliques: list[Clique], keys) -> dict[int, np.ndarray]:
     ``cliques``, from :func:`cliques_top_down`), in one pass from the roots down (module
     docstring)."""
     wanted = set(int(k) for k in keys)
-    # one BLAS thread: the matrices are small, and the parts run one process per CPU (two
-    # processes with OpenBLAS's threads each took 3.3 s for a bridge part, against 0.56 s)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():  # the parts run one process per CPU (trackfusion/forked.py)
         out = _pass(cliques, wanted)
     missing = wanted - out.keys()
     if missing:
