@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import B, V, X
 
+from trackfusion.errors import FusionError
 from trackfusion.fusion import tree_marginals as tm
 from trackfusion.fusion.partitioned import joint_marginal_covariance
 
@@ -36,6 +37,11 @@ def _chain(seed: int, n: int, reach: int, constrained: bool = False) -> gtsam.Ga
     return g
 
 
+def _tree_and_ordering(g: gtsam.GaussianFactorGraph):
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(g)
+    return g.eliminateMultifrontal(ordering, gtsam.EliminateQR), ordering
+
+
 def _dense_marginals(g: gtsam.GaussianFactorGraph, keys: list[int]) -> dict[int, np.ndarray]:
     """The exact marginal covariances: the inverse of ``A^T A`` (whitened), blocks of ``keys``."""
     order = list(g.keyVector())
@@ -56,8 +62,7 @@ def _worst(got: dict[int, np.ndarray], exact: dict[int, np.ndarray]) -> float:
                                                       (4, 40, 5, True)])
 def test_pass_gives_the_dense_inverse(seed, n, reach, constrained):
     g = _chain(seed, n, reach, constrained)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(g)
-    cliques = tm.cliques_top_down(g.eliminateMultifrontal(ordering, gtsam.EliminateQR), ordering)
+    cliques = tm.cliques_top_down(*_tree_and_ordering(g))
     keys = [X(i) for i in range(n)] + [V(n - 1), B(0)]
     got = tm.marginal_covariances(cliques, keys)
     assert sorted(got) == sorted(keys)
@@ -71,8 +76,7 @@ def test_pass_gives_the_dense_inverse(seed, n, reach, constrained):
 
 def test_every_clique_comes_after_its_parent_and_children_are_counted():
     g = _chain(5, 80, 6)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(g)
-    cliques = tm.cliques_top_down(g.eliminateMultifrontal(ordering, gtsam.EliminateQR), ordering)
+    cliques = tm.cliques_top_down(*_tree_and_ordering(g))
     position = {c.keys[0]: i for i, c in enumerate(cliques)}
     children: dict[int, int] = {}
     for i, c in enumerate(cliques):
@@ -86,7 +90,33 @@ def test_every_clique_comes_after_its_parent_and_children_are_counted():
 
 def test_a_key_the_tree_does_not_hold_is_refused():
     g = _chain(6, 5, 2)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(g)
-    cliques = tm.cliques_top_down(g.eliminateMultifrontal(ordering, gtsam.EliminateQR), ordering)
+    cliques = tm.cliques_top_down(*_tree_and_ordering(g))
     with pytest.raises(KeyError, match="x99"):
         tm.marginal_covariances(cliques, [X(1), X(99)])
+
+
+def _with_hard_constraint() -> gtsam.GaussianFactorGraph:
+    """A short chain whose first pose equals a bias exactly (a zero-sigma constraint)."""
+    g = _chain(7, 8, 3)
+    g.add(X(0), np.eye(6), B(0), -np.eye(6), np.zeros(6), gtsam.noiseModel.Constrained.All(6))
+    return g
+
+
+def test_a_hard_constraint_is_refused_by_the_pass_and_left_to_gtsams_marginals(monkeypatch):
+    g = _with_hard_constraint()
+    cliques = tm.cliques_top_down(*_tree_and_ordering(g))
+    assert any(c.sigmas() is not None and not np.all(c.sigmas() > 0) for c in cliques)
+    with pytest.raises(FusionError, match="hard constraint"):
+        tm.marginal_covariances(cliques, [X(1)])
+    monkeypatch.setattr(tm, "WIDE_CLIQUE_COLUMNS", 0.0)
+    assert not tm.takes_the_pass(cliques)
+    assert tm.takes_the_pass(tm.cliques_top_down(*_tree_and_ordering(_chain(7, 8, 3))))
+
+
+def test_the_pass_is_taken_from_the_mean_clique_width(monkeypatch):
+    cliques = tm.cliques_top_down(*_tree_and_ordering(_chain(8, 30, 6)))
+    mean = float(np.mean([c.columns for c in cliques]))
+    monkeypatch.setattr(tm, "WIDE_CLIQUE_COLUMNS", mean)
+    assert tm.takes_the_pass(cliques)
+    monkeypatch.setattr(tm, "WIDE_CLIQUE_COLUMNS", mean + 0.1)
+    assert not tm.takes_the_pass(cliques)

@@ -50,7 +50,7 @@ import numpy as np
 
 from ..errors import FusionError
 from ..parallel import dask_client, groups_of, run_step, run_step_dask
-from .tree_marginals import cliques_top_down, is_wide, marginal_covariances
+from .tree_marginals import cliques_top_down, marginal_covariances, takes_the_pass
 
 _INDEX_MASK = (1 << 56) - 1
 
@@ -510,12 +510,12 @@ class PartMarginals:
     def covariances(self, part: int, keys: list[int]) -> dict[int, np.ndarray]:
         """The marginal covariances of ``keys``, all of part ``part``: by one pass down the
         part's tree where its cliques are wide (fusion/tree_marginals.py: exact to rounding, and
-        then the cheaper), else by GTSAM's per-key marginals (:func:`marginal_covariance`). The
-        choice follows the tree's structure only: the same on any machine."""
+        then the cheaper) and hold no hard constraint, else by GTSAM's per-key marginals
+        (:func:`marginal_covariance`). The choice follows the tree only: the same on any machine."""
         if not keys:
             return {}
         cliques = cliques_top_down(self.tree(keys[0]), self._orderings[part])
-        if is_wide(cliques):
+        if takes_the_pass(cliques):
             return marginal_covariances(cliques, keys)
         return {k: marginal_covariance(self, k) for k in keys}
 

@@ -34,6 +34,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dgeqrf
 
+from ..errors import FusionError
 from ..forked import one_blas_thread
 from .normal_solve import key_dim
 
@@ -62,14 +63,20 @@ class Clique:
     def columns(self) -> int:
         return sum(key_dim(k) for k in self.keys)
 
-    def whitened(self) -> tuple[np.ndarray, np.ndarray]:
-        """``R`` (F, F) and ``S`` (F, N - F) with unit noise (a constrained model's elimination
-        keeps its rows' sigmas in the conditional's model)."""
-        R, S = np.array(self.cond.R()), np.array(self.cond.S())
+    def sigmas(self) -> np.ndarray | None:
+        """The rows' sigmas (F,) a constrained model's elimination kept, or None (unit noise)."""
         model = self.cond.get_model()
-        if model is not None and not model.isUnit():
-            sigmas = np.asarray(model.sigmas())[:, None]
-            R, S = R / sigmas, S / sigmas
+        return None if model is None or model.isUnit() else np.asarray(model.sigmas())
+
+    def whitened(self) -> tuple[np.ndarray, np.ndarray]:
+        """``R`` (F, F) and ``S`` (F, N - F) with unit noise. A hard constraint (a zero sigma: no
+        square-root information can hold it) is refused."""
+        R, S = np.array(self.cond.R()), np.array(self.cond.S())
+        sigmas = self.sigmas()
+        if sigmas is not None:
+            if not np.all(sigmas > 0.0):
+                raise FusionError("tree marginals: a hard constraint (a zero sigma) in the Bayes tree")
+            R, S = R / sigmas[:, None], S / sigmas[:, None]
         return R, S
 
 
@@ -93,10 +100,13 @@ def cliques_top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) ->
     return out
 
 
-def is_wide(cliques: list[Clique]) -> bool:
+def takes_the_pass(cliques: list[Clique]) -> bool:
     """Whether the cliques are wide enough for this pass to beat GTSAM's per-key marginals
-    (:data:`WIDE_CLIQUE_COLUMNS`)."""
-    return bool(cliques) and float(np.mean([c.columns for c in cliques])) >= WIDE_CLIQUE_COLUMNS
+    (:data:`WIDE_CLIQUE_COLUMNS`) and hold no hard constraint (a zero sigma, which GTSAM's
+    marginals take and the square-root information cannot)."""
+    if not cliques or float(np.mean([c.columns for c in cliques])) < WIDE_CLIQUE_COLUMNS:
+        return False
+    return all(s is None or np.all(s > 0.0) for s in (c.sigmas() for c in cliques))
 
 
 def _rows(keys: list[int], offset: dict[int, int]) -> list[int]:
