@@ -97,30 +97,52 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
         key = ordering.at(i)
         if key in offset:
             continue
-        cond = tree[key].conditional()
-        R = np.array(cond.R())  # a copy: the tree may go
-        keys, n_f, start, n = list(cond.keys()), R.shape[0], size, 0
-        while size - start < n_f:  # the frontal keys: the first ones, whose dimensions fill R
-            offset[keys[n]] = size
-            size, n = size + key_dim(keys[n]), n + 1
-        conds.append((cond, R))
+        cond = tree[key].conditional()  # kept: it holds R and S while the tree may go
+        keys, start = list(cond.keys()), size
+        n = frontal_count(keys, cond.rows())
+        for k in keys[:n]:
+            offset[k], size = size, size + key_dim(k)
+        conds.append(cond)
         frontal.append((start, size, keys[n:]))
         last.append(max(position[k] for k in keys[:n]))
     order = np.argsort(last, kind="stable")
     conds, frontal = [conds[i] for i in order], [frontal[i] for i in order]
     blocks = []
     seps = _separator_rows([parents for _, _, parents in frontal], offset)
-    for (cond, R), (start, stop, _), sep in zip(conds, frontal, seps):
-        S = np.array(cond.S())
-        model = cond.get_model()
-        if model is not None and not model.isUnit():  # a constrained factor's elimination keeps its rows' sigmas
-            sigmas = np.asarray(model.sigmas())
-            if not np.all(sigmas > 0.0):
-                raise FusionError("normal solve: a hard constraint (a zero sigma) in the factor graph")
-            R, S = R / sigmas[:, None], S / sigmas[:, None]
+    for cond, (start, stop, _), sep in zip(conds, frontal, seps):
+        R, S = whitened(cond, "normal solve")
         blocks.append((start, stop, sep, R, S))
     R_inv = _inverses([b[3] for b in blocks])
     return TreeFactor(offset, size, [_Clique(a, b, sep, r, S) for (a, b, sep, _, S), r in zip(blocks, R_inv)])
+
+
+def frontal_count(keys: list[int], rows: int) -> int:
+    """How many of a conditional's ``keys`` (frontal first) are frontal: the first ones, whose
+    :func:`key_dim` fill its ``rows`` rows of ``R``."""
+    n, filled = 0, 0
+    while filled < rows:
+        filled, n = filled + key_dim(keys[n]), n + 1
+    return n
+
+
+def kept_sigmas(cond: gtsam.GaussianConditional) -> np.ndarray | None:
+    """The rows' sigmas (F,) that a constrained factor's elimination kept in conditional
+    ``cond``'s model, or None (unit noise)."""
+    model = cond.get_model()
+    return None if model is None or model.isUnit() else np.asarray(model.sigmas())
+
+
+def whitened(cond: gtsam.GaussianConditional, who: str) -> tuple[np.ndarray, np.ndarray]:
+    """Conditional ``cond``'s ``R`` (F, F) and ``S`` (F, N - F), copied, with unit noise (rows
+    divided by their :func:`kept_sigmas`). A hard constraint (a zero sigma) is refused, the
+    error naming ``who`` asked."""
+    R, S = np.array(cond.R()), np.array(cond.S())
+    sigmas = kept_sigmas(cond)
+    if sigmas is not None:
+        if not np.all(sigmas > 0.0):
+            raise FusionError(f"{who}: a hard constraint (a zero sigma) in the factor graph")
+        R, S = R / sigmas[:, None], S / sigmas[:, None]
+    return R, S
 
 
 def _separator_rows(parents: list[list[int]], offset: dict[int, int]) -> list[np.ndarray]:

@@ -34,9 +34,8 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dgeqrf
 
-from ..errors import FusionError
 from ..forked import one_blas_thread
-from .normal_solve import key_dim
+from .normal_solve import frontal_count, kept_sigmas, key_dim, whitened
 
 #: mean clique width (frontal and separator columns) from which this pass is the cheaper than
 #: GTSAM's per-key marginals of one sigma keyframe a second. Measured on the sigma parts
@@ -65,19 +64,12 @@ class Clique:
 
     def sigmas(self) -> np.ndarray | None:
         """The rows' sigmas (F,) a constrained model's elimination kept, or None (unit noise)."""
-        model = self.cond.get_model()
-        return None if model is None or model.isUnit() else np.asarray(model.sigmas())
+        return kept_sigmas(self.cond)
 
     def whitened(self) -> tuple[np.ndarray, np.ndarray]:
         """``R`` (F, F) and ``S`` (F, N - F) with unit noise. A hard constraint (a zero sigma: no
         square-root information can hold it) is refused."""
-        R, S = np.array(self.cond.R()), np.array(self.cond.S())
-        sigmas = self.sigmas()
-        if sigmas is not None:
-            if not np.all(sigmas > 0.0):
-                raise FusionError("tree marginals: a hard constraint (a zero sigma) in the Bayes tree")
-            R, S = R / sigmas[:, None], S / sigmas[:, None]
-        return R, S
+        return whitened(self.cond, "tree marginals")
 
 
 def cliques_top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> list[Clique]:
@@ -91,9 +83,8 @@ def cliques_top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) ->
             continue
         clique = tree[key]
         cond = clique.conditional()
-        keys, frontal, rows = list(cond.keys()), 0, 0
-        while rows < cond.rows():  # the frontal keys: the first ones, whose dimensions fill R
-            rows, frontal = rows + key_dim(keys[frontal]), frontal + 1
+        keys = list(cond.keys())
+        frontal = frontal_count(keys, cond.rows())
         taken.update(keys[:frontal])
         parent = clique.parent().conditional().firstFrontalKey() if frontal < len(keys) else None
         out.append(Clique(cond, keys, frontal, parent, clique.nrChildren()))
