@@ -192,6 +192,33 @@ def test_workers_give_the_numbers_of_one_process(survey):
             assert np.array_equal(getattr(here, name), getattr(other, name)), (workers, name)
 
 
+def test_part_queue_hands_each_part_to_one_process_once():
+    """PartQueue in run_step's processes (2 and 3: this one and forked children): every part is
+    taken exactly once, and while one process is held on part 0 (until the last part is taken)
+    the others take every other part, not a contiguous share each."""
+    import multiprocessing
+
+    from trackfusion.parallel import PartQueue, groups_of, run_step
+
+    n_parts = 6
+    for workers in (2, 3):
+        queue, last_taken = PartQueue(n_parts), multiprocessing.get_context("fork").Event()
+
+        def take(_group, _given):
+            taken = []
+            for p in queue:
+                if p == 0:
+                    assert last_taken.wait(30.0)
+                if p == n_parts - 1:
+                    last_taken.set()
+                taken.append(p)
+            return taken
+
+        _, _, done = run_step(groups_of(n_parts, workers), lambda g: None, lambda r: None, take)
+        assert sorted(p for taken in done for p in taken) == list(range(n_parts))
+        assert [0] in done, (workers, done)
+
+
 def test_a_dead_worker_ends_the_solve_naming_its_part(survey, monkeypatch):
     import os
     import signal

@@ -105,6 +105,27 @@ def run_step(groups: list[list[int]], reduce: Callable[[list[int]], Any],
             proc.join()
 
 
+class PartQueue:
+    """The indices ``0 .. n - 1``, each handed out once to whichever process asks next: this
+    process and the children forked after the queue was made (a counter in shared memory under
+    its lock). For work whose parts cost unequal time (the sigma parts' trees): each process takes
+    the next part when it is done with its last, instead of a fixed group. What a part gives does
+    not depend on which process computed it, so the numbers are the same."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self._next = fork_context().Value("l", 0)
+
+    def __iter__(self) -> Iterator[int]:
+        while True:
+            with self._next.get_lock():
+                i = self._next.value
+                self._next.value = i + 1
+            if i >= self.n:
+                return
+            yield i
+
+
 @contextlib.contextmanager
 def _sigint_deferred() -> Iterator[None]:
     """SIGINT held back while the block runs (only in the main thread, where Python runs signal

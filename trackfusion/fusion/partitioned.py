@@ -49,7 +49,7 @@ import gtsam
 import numpy as np
 
 from ..errors import FusionError
-from ..parallel import dask_client, groups_of, run_step, run_step_dask
+from ..parallel import PartQueue, dask_client, groups_of, run_step, run_step_dask
 from .tree_marginals import cliques_top_down, marginal_covariances, takes_the_pass
 
 _INDEX_MASK = (1 << 56) - 1
@@ -342,9 +342,10 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
                               made: "PartMarginals | None" = None) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """The marginal covariances of ``keys`` in linearised graph ``gfg``, computed in the parts of
     ``partition`` as :class:`PartMarginals` computes them (the same numbers), with the parts
-    dealt to ``workers`` processes (trackfusion/parallel.py): each reduces its parts, every
-    part's reduced factors go to every process, and each eliminates its parts' trees and answers
-    the keys that live in them. Only the reduced factors and the covariances cross processes.
+    dealt to ``workers`` processes (trackfusion/parallel.py): each reduces its group of parts,
+    every part's reduced factors go to every process, and each then takes the next part not yet
+    taken (:class:`~trackfusion.parallel.PartQueue`), eliminates its tree and answers the keys
+    that live in it. Only the reduced factors and the covariances cross processes.
 
     Also returns the joint marginal covariance of ``joint_keys`` (in that order; the sum of their
     dimensions, square) when they are all separator keys (e.g. total-station set-ups seen in
@@ -365,9 +366,13 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
             return []
         return [_pack(_reduce(layout.part_graph(gfg, p), layout.interior[p]).reduced) for p in group]
 
-    def covariances(group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
+    # the trees and covariances, each part's in whichever process is free next (PartQueue): the
+    # parts' costs differ by up to 3x (docs/solver_speed.md); every process holds every reduced factor
+    queue = PartQueue(partition.count)
+
+    def covariances(_group: list[int], packed: list[list[str]]) -> dict[int, np.ndarray]:
         marginals = made if made is not None else PartMarginals(gfg, [_unpack(r) for r in packed], layout)
-        return {k: v for p in group if p in by_part for k, v in marginals.covariances(p, by_part[p]).items()}
+        return {k: v for p in queue if p in by_part for k, v in marginals.covariances(p, by_part[p]).items()}
 
     def all_reduced(per_group: list[list[list[str]]]) -> list[list[str]]:
         return [r for group in per_group for r in group]
