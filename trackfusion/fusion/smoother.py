@@ -683,6 +683,7 @@ class _Solved:
     ordering: gtsam.Ordering | None = None
     history: StepHistory = field(default_factory=StepHistory)  # fusion/convergence.py
     gfg: gtsam.GaussianFactorGraph | None = None
+    early: bool = False  # stopped at the gate's tolerance (StopRule.gate_step_tol_m), not the rule's own
 
 
 @dataclass(frozen=True)
@@ -691,12 +692,16 @@ class StopRule:
     ``rtol`` (relative), or when the predicted remaining correction is below ``step_tol_m`` [m]
     (0: off; fusion/convergence.py). ``gating``: a gating round's, whose estimate only decides the
     gate and the noise estimate, the next round or the last one's convergence (:func:`_solve_in_rounds`)
-    going on from it: the first two steps' ratio already predicts the correction to come."""
+    going on from it: the first two steps' ratio already predicts the correction to come.
+    ``gate_step_tol_m`` [m] (0: none): a gating round may stop earlier, once the correction still
+    to come is below it, for its gate (:func:`_solve_in_rounds` carries the steps on to
+    ``step_tol_m`` when the gate rejects nothing); the solve is then ``early``."""
 
     max_iterations: int
     rtol: float
     step_tol_m: float = 0.0
     gating: bool = False
+    gate_step_tol_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -728,6 +733,7 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRu
     if history.converged(stop.step_tol_m):
         return _Solved(values, state, 0, cost0, cost, tree, ordering, history, gfg)
     solver = PartitionedSolver(partition, partition.workers) if partition is not None else None
+    early = False
     for it in range(1, stop.max_iterations + 1):
         gfg = _linearize(G, values, with_scale, state, blocks)
         blocks = None
@@ -756,7 +762,10 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRu
         say(f"  iteration {it}: cost {cost:.6g} (step {step:g})")
         if decrease < stop.rtol or history.converged(stop.step_tol_m, stop.gating):
             break
-    return _Solved(values, state, it, cost0, cost, tree, ordering, history, gfg)
+        early = stop.gate_step_tol_m > stop.step_tol_m and history.converged(stop.gate_step_tol_m, stop.gating)
+        if early:
+            break
+    return _Solved(values, state, it, cost0, cost, tree, ordering, history, gfg, early)
 
 
 def white_covariance(cov_n: np.ndarray, correlated_sigma_m: np.ndarray, min_sigma_m: float) -> np.ndarray:
@@ -1175,7 +1184,8 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
     stop = StopRule(sm.max_iterations, sm.relative_tolerance, sm.step_tolerance_mm * 1e-3)  # step: m; 0: off
     # a gating round need not converge to the last digit before its gate: the tolerance is
     # tightened once the gate rejects nothing more (below)
-    round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE), gating=True) if gates.gating else stop
+    round_stop = replace(stop, rtol=max(stop.rtol, GATE_RELATIVE_TOLERANCE), gating=True,
+                         gate_step_tol_m=_gate_step_tolerance_m(problem, gates)) if gates.gating else stop
     iterations, cost0, reweighted = 0, None, False
     for round_ in range(4 + (nc.MAX_REFITS if components is not None else 0)):
         G, gnss_build, prism_build = _round_graph(b, base, values, gates, components)
@@ -1183,13 +1193,17 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
             + (f" (gating round {round_ + 1})" if gates.gating else ""))
         # a round that only reweights the last one's graph starts at its solution: one step
         # moves it to the new weights' (the next one is ~1e-5 of it: docs/solver_speed.md)
-        this_stop = replace(round_stop, max_iterations=1) if reweighted else round_stop
+        this_stop = replace(round_stop, max_iterations=1, gate_step_tol_m=0.0) if reweighted else round_stop
         # (a reweighted round's graph has the last one's factors: COLAMD would give its ordering again)
         sol = gauss_newton(G, values, b.kf.with_scale, this_stop, say, partition=partition,
                            start=_Start(reweighted, sol.ordering if reweighted else None))
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
+        if sol.early and not (rejected or refit):  # the noise estimate and the last round need the round's own tolerance
+            sol = gauss_newton(G, values, b.kf.with_scale, replace(this_stop, gate_step_tol_m=0.0), say, sol, partition)
+            values, iterations = sol.values, iterations + sol.iterations
+            rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
 
         def converge(tell: Callable[[str], None], sol: _Solved = sol, G: _Graph = G, values=values) -> _Solved:
             return gauss_newton(G, values, b.kf.with_scale, stop, tell, sol, sigma_parts or partition)
@@ -1209,6 +1223,18 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
             break
         reweighted = not rejected
     return _Rounds(sol, G, iterations, cost0)
+
+
+def _gate_step_tolerance_m(problem: FusionProblem, gates: _Gates) -> float:
+    """The correction still to come [m] below which a gating round may apply its GNSS gate:
+    :data:`GATE_STEP_SHARE` of the smallest white sigma the gate works with
+    (``factors.gnss.min_sigma_mm``), so that no fix's normalised residual moves by more than that
+    share of one sigma afterwards; 0 (the round's own tolerance) where prism readings are gated as
+    well, whose sigmas are finer. A round whose gate rejects a fix is followed by another one
+    from its estimate, so the steps it saves are not taken at all (docs/solver_speed.md)."""
+    if gates.gnss is None or gates.prisms is not None:
+        return 0.0
+    return GATE_STEP_SHARE * problem.factors.gnss.min_sigma_mm * 1e-3
 
 
 def _components_json(components: "nc.NoiseComponents | None", fs, say: Callable[[str], None]) -> dict | None:
@@ -1396,6 +1422,10 @@ def _station_covariance(prisms, tree: gtsam.GaussianBayesTree) -> np.ndarray | N
 #: relative cost decrease at which a gating round stops iterating and applies its gate (the
 #: last round, whose gate rejects nothing, then goes on to ``smoother.relative_tolerance``)
 GATE_RELATIVE_TOLERANCE = 1e-4
+
+#: share of the smallest GNSS white sigma that a gating round's correction still to come may be when
+#: its gate is applied (:func:`_gate_step_tolerance_m`)
+GATE_STEP_SHARE = 0.1
 
 
 #: prism readings over which the initial shift onto them is median-filtered (30 s at 10 Hz: a
