@@ -708,10 +708,14 @@ class StopRule:
 class _Start:
     """How a solve without a ``previous`` one starts (:func:`gauss_newton`): ``warm``: its values
     are the converged estimate of this graph with other noise weights (fusion/convergence.py);
-    ``ordering``: the elimination order of a graph of this one's structure (COLAMD's otherwise)."""
+    ``ordering``: the elimination order of a graph of this one's structure (COLAMD's otherwise);
+    ``first_in_parts``: the first step solved in these parts on their workers (the same step to
+    rounding; the first round's, in the sigma parts: its tree serves no gate, as a cold round
+    takes two steps at least)."""
 
     warm: bool = False
     ordering: gtsam.Ordering | None = None
+    first_in_parts: "Partition | None" = None
 
 
 def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRule, say: Callable[[str], None],
@@ -739,6 +743,8 @@ def gauss_newton(G: _Graph, values: gtsam.Values, with_scale: bool, stop: StopRu
         blocks = None
         if solver is not None:
             delta, tree = solver.solve(gfg)
+        elif it == 1 and start.first_in_parts is not None:
+            delta, tree = PartitionedSolver(start.first_in_parts, start.first_in_parts.workers).solve(gfg)
         else:
             ordering = ordering or gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
             tree = _eliminate(gfg, ordering)
@@ -1196,7 +1202,8 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         this_stop = replace(round_stop, max_iterations=1, gate_step_tol_m=0.0) if reweighted else round_stop
         # (a reweighted round's graph has the last one's factors: COLAMD would give its ordering again)
         sol = gauss_newton(G, values, b.kf.with_scale, this_stop, say, partition=partition,
-                           start=_Start(reweighted, sol.ordering if reweighted else None))
+                           start=_Start(reweighted, sol.ordering if reweighted else None,
+                                        sigma_parts if round_ == 0 and partition is None else None))
         values, iterations = sol.values, iterations + sol.iterations
         cost0 = sol.initial_cost if cost0 is None else cost0
         rejected, refit = gates.gate(prism_build, gnss_build, sol, b, values)
