@@ -710,8 +710,9 @@ class _Start:
     are the converged estimate of this graph with other noise weights (fusion/convergence.py);
     ``ordering``: the elimination order of a graph of this one's structure (COLAMD's otherwise);
     ``first_in_parts``: the first step solved in these parts on their workers (the same step to
-    rounding; the first round's, in the sigma parts: its tree serves no gate, as a cold round
-    takes two steps at least)."""
+    rounding; the first round's, in the sigma parts: a cold start takes a second step, whose
+    tree the gate reads, unless the first already converged, when the gate reads the parts'
+    marginals as with ``smoother.part_s``)."""
 
     warm: bool = False
     ordering: gtsam.Ordering | None = None
