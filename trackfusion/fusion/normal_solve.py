@@ -26,6 +26,7 @@ sigma parts take where their cliques are wide).
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import gtsam
@@ -93,13 +94,8 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
     offset: dict[int, int] = {}  # of the frontal keys of the cliques taken
     conds, frontal, last = [], [], []
     size = 0
-    for i in range(ordering.size()):
-        key = ordering.at(i)
-        if key in offset:
-            continue
-        cond = tree[key].conditional()  # kept: it holds R and S while the tree may go
-        keys, start = list(cond.keys()), size
-        n = frontal_count(keys, cond.rows())
+    for _, cond, keys, n in each_clique(tree, ordering):  # cond kept: it holds R and S while the tree may go
+        start = size
         for k in keys[:n]:
             offset[k], size = size, size + key_dim(k)
         conds.append(cond)
@@ -114,6 +110,25 @@ def tree_factor(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> Tree
         blocks.append((start, stop, sep, R, S))
     R_inv = _inverses([b[3] for b in blocks])
     return TreeFactor(offset, size, [_Clique(a, b, sep, r, S) for (a, b, sep, _, S), r in zip(blocks, R_inv)])
+
+
+def each_clique(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering, top_down: bool = False
+                ) -> Iterator[tuple[gtsam.GaussianBayesTreeClique, gtsam.GaussianConditional, list[int], int]]:
+    """Each clique of ``tree`` (eliminated in ``ordering``) once: the clique, its conditional, the
+    conditional's keys (frontal first) and how many are frontal (:func:`frontal_count`). In the
+    order of their first frontal key in ``ordering``; ``top_down``: in reverse order of their last,
+    every clique after its parent."""
+    taken: set[int] = set()
+    for i in (range(ordering.size() - 1, -1, -1) if top_down else range(ordering.size())):
+        key = ordering.at(i)
+        if key in taken:
+            continue
+        clique = tree[key]
+        cond = clique.conditional()
+        keys = list(cond.keys())
+        n = frontal_count(keys, cond.rows())
+        taken.update(keys[:n])
+        yield clique, cond, keys, n
 
 
 def frontal_count(keys: list[int], rows: int) -> int:

@@ -35,7 +35,7 @@ from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dgeqrf
 
 from ..forked import one_blas_thread
-from .normal_solve import frontal_count, kept_sigmas, key_dim, whitened
+from .normal_solve import each_clique, kept_sigmas, key_dim, whitened
 
 #: mean clique width (frontal and separator columns) from which this pass is the cheaper than
 #: GTSAM's per-key marginals of one sigma keyframe a second. Measured on the sigma parts
@@ -75,17 +75,8 @@ class Clique:
 def cliques_top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> list[Clique]:
     """The cliques of ``tree`` (eliminated in ``ordering``), each after its parent: in reverse
     elimination order of their last frontal key (fusion/normal_solve.py ``tree_factor``)."""
-    taken: set[int] = set()
     out = []
-    for i in range(ordering.size() - 1, -1, -1):
-        key = ordering.at(i)
-        if key in taken:
-            continue
-        clique = tree[key]
-        cond = clique.conditional()
-        keys = list(cond.keys())
-        frontal = frontal_count(keys, cond.rows())
-        taken.update(keys[:frontal])
+    for clique, cond, keys, frontal in each_clique(tree, ordering, top_down=True):
         parent = clique.parent().conditional().firstFrontalKey() if frontal < len(keys) else None
         out.append(Clique(cond, keys, frontal, parent, clique.nrChildren()))
     return out
