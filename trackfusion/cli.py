@@ -53,10 +53,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .pipeline import format_summary, load_pipeline, run
-    from .verdict import verdict_line
+    from .log_read import read_ahead
 
-    result = run(load_pipeline(args.pipeline), args.out, progress=_progress, force=args.force)
+    with read_ahead(args.pipeline) as ahead:  # the log read in a forked child while the toolkit loads
+        from .pipeline import format_summary, load_pipeline, run
+        from .verdict import verdict_line
+
+        result = run(load_pipeline(args.pipeline), args.out, progress=_progress, force=args.force, read_ahead=ahead)
     print(format_summary(result))
     print(verdict_line(result.metrics))
     return 0

@@ -4,7 +4,8 @@ surveys, Dask) the only module that forks, starts pools or threads, or imports
 ``multiprocessing``, ``concurrent.futures`` or ``threading`` (tests/test_layout.py).
 
 The toolkit's forked child processes: when they may be started (:func:`can_fork`, for every
-user: the log reader's decode workers, sensors/mcap_log.py; the smoother's parts,
+user: the log read ahead by ``trackfusion run``, trackfusion/log_read.py; the log reader's decode
+workers, sensors/mcap_log.py; the smoother's parts,
 trackfusion/parallel.py; the densification, fusion/densify_forked.py; the outputs, report/outputs.py;
 vision), and work done in forked children while this process goes on (a run's outputs on the
 second core).
@@ -13,7 +14,8 @@ Children are forked, never spawned: a spawned one would import the caller's main
 and every module anew, and forking lets a child read the parent's arrays without copying them.
 
 :class:`ForkedTasks` runs functions in children forked from this process (they see its memory as it
-was at the fork, copy-on-write, and send their return value back through a pipe); :meth:`wait`
+was at the fork, copy-on-write, and send their return value back: its arrays through an in-memory
+file that this process then maps, the rest through a pipe); :meth:`wait`
 takes the results in the order submitted and raises the first failure in this process: the
 child's exception itself (a :class:`~trackfusion.errors.TrackfusionError` stays one, so the
 command line still exits with code 2 and its one line), or :class:`ForkedTaskError` when a child
@@ -36,6 +38,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import gc
+import mmap
 import multiprocessing
 import os
 import pickle
@@ -84,6 +87,7 @@ class ForkedTask:
         self.what = what
         self.pid: int | None = None
         self._fd: int | None = None
+        self._buffers_fd: int | None = None  # the answer's arrays (:func:`_answer_buffers_fd`)
         self._done = False
         self._value: Any = None
         self._error: BaseException | None = None
@@ -124,17 +128,20 @@ class ForkedTask:
         os.close(self._fd)
         _, status = os.waitpid(self.pid, 0)
         self.pid = None
-        if not chunks or os.WIFSIGNALED(status) or os.WEXITSTATUS(status) != 0:
-            how = (f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status)
-                   else f"exit code {os.WEXITSTATUS(status)}")
-            self._settle(error=ForkedTaskError(f"{self.what}: the forked child process died ({how})"))
-            return
         try:
-            ok, payload = pickle.loads(b"".join(chunks))
-        except Exception as exc:  # noqa: BLE001 (e.g. an exception class that does not unpickle)
-            self._settle(error=ForkedTaskError(f"{self.what}: unreadable answer of the child ({exc})"))
-            return
-        self._settle(value=payload) if ok else self._settle(error=payload)
+            if not chunks or os.WIFSIGNALED(status) or os.WEXITSTATUS(status) != 0:
+                how = (f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status)
+                       else f"exit code {os.WEXITSTATUS(status)}")
+                self._settle(error=ForkedTaskError(f"{self.what}: the forked child process died ({how})"))
+                return
+            try:
+                ok, payload = _answer(b"".join(chunks), self._buffers_fd)
+            except Exception as exc:  # noqa: BLE001 (e.g. an exception class that does not unpickle)
+                self._settle(error=ForkedTaskError(f"{self.what}: unreadable answer of the child ({exc})"))
+                return
+            self._settle(value=payload) if ok else self._settle(error=payload)
+        finally:
+            self._close_buffers()
 
     def _kill(self) -> None:
         if self.pid is not None:
@@ -142,7 +149,14 @@ class ForkedTask:
             os.close(self._fd)
             os.waitpid(self.pid, 0)
             self.pid = None
+            self._close_buffers()
             self._settle(error=ForkedTaskError(f"{self.what}: stopped"))
+
+    def _close_buffers(self) -> None:
+        if self._buffers_fd is not None:
+            _ANSWER_FDS.discard(self._buffers_fd)
+            os.close(self._buffers_fd)
+            self._buffers_fd = None
 
 
 class ForkedTasks:
@@ -165,15 +179,16 @@ class ForkedTasks:
                 task._settle(error=exc)
             return task
         read_fd, write_fd = os.pipe()
+        buffers_fd = _answer_buffers_fd()
         gc.freeze()  # the child's collector leaves this process's objects (and their pages) alone
         parent_pid = os.getpid()
         pid = os.fork()
         if pid == 0:  # pragma: no cover (runs in the child; covered through its answers)
             _die_with_parent(parent_pid)
-            _child(read_fd, write_fd, fn, args, kwargs)
+            _child(read_fd, write_fd, buffers_fd, (fn, args, kwargs))
         gc.unfreeze()
         os.close(write_fd)
-        task.pid, task._fd = pid, read_fd
+        task.pid, task._fd, task._buffers_fd = pid, read_fd, buffers_fd
         return task
 
     def submit_idle(self, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> ForkedTask:
@@ -228,33 +243,90 @@ def _die_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
 
-def _child(read_fd: int, write_fd: int, fn: Callable, args: tuple, kwargs: dict) -> None:
-    """The forked child: run ``fn``, send (ok, value or exception) and leave without any clean-up
-    of the parent's state (no atexit handlers, no buffered output of the parent flushed twice)."""
+def _child(read_fd: int, write_fd: int, buffers_fd: int | None, call: tuple[Callable, tuple, dict]) -> None:
+    """The forked child: run ``call`` (function, args, kwargs), send (ok, value or exception)
+    (:func:`_pickled_answer`) and leave without any clean-up of the parent's state (no atexit
+    handlers, no buffered output of the parent flushed twice)."""
     global _IN_CHILD
     _IN_CHILD = True
     code = 0
     try:
         os.close(read_fd)
+        for fd in _ANSWER_FDS - {buffers_fd}:  # other tasks' answers: not this child's to hold
+            os.close(fd)
+        fn, args, kwargs = call
         try:
             answer = (True, fn(*args, **kwargs))
         except BaseException as exc:  # noqa: BLE001 (handed to the parent)
             if not isinstance(exc, TrackfusionError):  # an internal error: where it happened
                 exc.add_note("in a forked child:\n" + traceback.format_exc().rstrip())
             answer = (False, exc)
-        try:
-            data = pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception:  # noqa: BLE001 (an exception that does not pickle: its type and message)
-            err = answer[1] if not answer[0] else TypeError("unpicklable result")
-            data = pickle.dumps((False, RuntimeError(f"{type(err).__name__}: {err}")))
-        view = memoryview(data)
-        while view:
-            view = view[os.write(write_fd, view):]
+        _write_all(write_fd, _pickled_answer(answer, buffers_fd))
         os.close(write_fd)
     except BaseException:  # noqa: BLE001
         code = 1
     finally:
         os._exit(code)
+
+
+#: the answer buffers' files of the tasks still running (closed in every other child)
+_ANSWER_FDS: set[int] = set()
+#: alignment [bytes] of each array in an answer's buffer file
+_BUFFER_ALIGN = 64
+
+
+def _answer_buffers_fd() -> int | None:
+    """An anonymous in-memory file (``memfd_create``) for a child's answer's arrays, made before
+    the fork so that both processes hold it; None where there is none (the answer then goes
+    whole through the pipe). Why: 100 MB of arrays take 0.3-0.5 s through a pipe (the log read
+    ahead, trackfusion/log_read.py), 0.05 s through the file, mapped with no copy."""
+    try:
+        fd = os.memfd_create("trackfusion-answer")
+    except (AttributeError, OSError):
+        return None
+    _ANSWER_FDS.add(fd)
+    return fd
+
+
+def _write_all(fd: int, data: bytes | memoryview) -> None:
+    view = memoryview(data).cast("B")
+    while view:
+        view = view[os.write(fd, view):]
+
+
+def _pickled_answer(answer: tuple[bool, Any], buffers_fd: int | None) -> bytes:
+    """What a child sends through its pipe: the pickle of (``answer``'s pickle, the layout
+    [(offset, bytes)] of its out-of-band arrays written to ``buffers_fd``). Protocol 5's
+    out-of-band buffers (numpy's contiguous arrays) go to ``buffers_fd``, each at an offset
+    aligned to :data:`_BUFFER_ALIGN`; without the file, everything is in the pickle."""
+    buffers: list[pickle.PickleBuffer] = []
+    try:
+        data = pickle.dumps(answer, protocol=5, buffer_callback=buffers.append if buffers_fd is not None else None)
+    except Exception:  # noqa: BLE001 (an exception that does not pickle: its type and message)
+        err = answer[1] if not answer[0] else TypeError("unpicklable result")
+        data, buffers = pickle.dumps((False, RuntimeError(f"{type(err).__name__}: {err}"))), []
+    layout, at = [], 0
+    for buffer in buffers:
+        raw = buffer.raw()
+        pad = -at % _BUFFER_ALIGN
+        if pad:
+            _write_all(buffers_fd, bytes(pad))
+        _write_all(buffers_fd, raw)
+        layout.append((at + pad, raw.nbytes))
+        at += pad + raw.nbytes
+    return pickle.dumps((data, layout), protocol=5)
+
+
+def _answer(sent: bytes, buffers_fd: int | None) -> tuple[bool, Any]:
+    """The (ok, value or exception) a child sent (:func:`_pickled_answer`): its arrays map the
+    buffer file (private, copy-on-write: writable, and the file is never changed)."""
+    data, layout = pickle.loads(sent)
+    if not layout:
+        return pickle.loads(data)
+    size = layout[-1][0] + layout[-1][1]
+    view = memoryview(mmap.mmap(buffers_fd, size, flags=mmap.MAP_PRIVATE, prot=mmap.PROT_READ | mmap.PROT_WRITE)
+                      if size else bytearray())
+    return pickle.loads(data, buffers=[view[at:at + n] for at, n in layout])
 
 
 class ForkedPool:

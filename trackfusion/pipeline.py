@@ -36,6 +36,7 @@ from .fusion.trajectory import KeyframeStates
 from .fusion.smoother import Preintegrated, SmootherResult, preintegrate_problem, smooth
 from .fusion.output_rate import chainage_along, trajectory_table  # noqa: F401 (also trackfusion.pipeline's)
 from .geometry_inputs import check_geometry_inputs, geometry_for_run
+from .log_read import LogRequest, ReadAhead, read_requested
 from .forked import ForkedTasks, can_fork as can_fork_tasks, usable_cpus
 from .output_prefetch import OutputPrefetch
 from .registration.stations import SETUP_POSITION_SIGMA_MM, StationSetupConfig
@@ -287,18 +288,17 @@ TRAJECTORY_UNITS = {
 }
 
 
-def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> tuple[SensorLog, dict | None]:
-    """The log and, when ``inputs.allow_truncated`` kept the readable part of a damaged file, what
-    was lost (reported and listed in ``faults.truncated_log``)."""
-    from .sensors import imu_axes, ros2
-    from .sensors.mcap_log import read_log_with_damage
+def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None, ahead: ReadAhead | None = None
+          ) -> tuple[SensorLog, dict | None]:
+    """The log (every topic: the fusion's, and fused.mcap carries them all) and, when
+    ``inputs.allow_truncated`` kept the readable part of a damaged file, what was lost (reported
+    and listed in ``faults.truncated_log``). ``ahead``: the log read ahead by ``trackfusion run``
+    (trackfusion/log_read.py), taken when it was read as this pipeline asks."""
+    from .sensors import imu_axes
     cfg = pipeline.config
-    path = pipeline.path(cfg.inputs.log)  # every topic: the fusion's, and fused.mcap carries them all
-    if cfg.inputs.topics is not None or ros2.is_bag(path):
-        topics = cfg.inputs.topics.model_dump() if cfg.inputs.topics is not None else None
-        log, damage = ros2.read_bag(path, topics, str(pipeline.source), cfg.inputs.allow_truncated)
-    else:
-        log, damage = read_log_with_damage(path, allow_truncated=cfg.inputs.allow_truncated)
+    path = pipeline.path(cfg.inputs.log)
+    request = LogRequest.of(pipeline)
+    log, damage = ahead.take(request, lambda: _output_imports(cfg)) if ahead is not None else read_requested(request)
     if damage is not None:
         readable = ", ".join(f"{k} {v}" for k, v in damage["records_readable"].items()) or "no records"
         say(f"warning: {path} is damaged at byte {damage['byte']} ({damage['reason']}); running on the readable "
@@ -312,6 +312,18 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None) -> t
         from .sensors.fused import survey_epoch_ns
         survey_epoch_ns(log.metadata, str(path))
     return log, damage
+
+
+def _output_imports(cfg: PipelineConfig) -> None:
+    """Import what the run's outputs need (the report's figures: matplotlib, about 0.25 s; the
+    evaluation against a reference): done while this process waits for the log read ahead
+    (trackfusion/log_read.py), not on the run's critical path after the smoothing."""
+    if cfg.outputs.report:
+        from .report import html  # noqa: F401
+        from .report.figures import preload
+        preload()
+    if cfg.inputs.reference is not None:
+        from .evaluation import reference  # noqa: F401
 
 
 def _origin(pipeline: Pipeline, log: SensorLog) -> geodesy.Origin:
@@ -606,10 +618,13 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
 
 
 def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
-        progress: Callable[[str], None] | None = None, force: bool = False) -> RunResult:
+        progress: Callable[[str], None] | None = None, force: bool = False,
+        read_ahead: ReadAhead | None = None) -> RunResult:
     """Process a survey (module docstring). ``out_dir`` defaults to ``out/`` beside the YAML;
-    it is checked and locked before anything is read (:class:`~trackfusion.outdir.OutputFolder`;
-    ``force``: write beside files trackfusion did not write)."""
+    it is checked and locked before anything read is used (:class:`~trackfusion.outdir.OutputFolder`;
+    ``force``: write beside files trackfusion did not write). ``read_ahead``: the log as
+    ``trackfusion run`` began reading it before the pipeline was validated (trackfusion/log_read.py;
+    taken when it is the log this pipeline reads)."""
     from .outdir import OutputFolder
     from .vision.run import VisionPipeline, run_vision
     if isinstance(pipeline, VisionPipeline):
@@ -617,7 +632,7 @@ def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,
     out = Path(out_dir) if out_dir is not None else pipeline.base_dir / "out"
     folder = OutputFolder(out, force, inputs=input_paths(pipeline), command="trackfusion run", writes=RUN_FILES)
     with folder.locked():
-        return _run(pipeline, folder, progress)
+        return _run(pipeline, folder, progress, read_ahead)
 
 
 #: the files a run may write into its output folder
@@ -636,18 +651,18 @@ def input_paths(pipeline: Pipeline) -> list[Path]:
     return paths
 
 
-def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = None) -> RunResult:
+def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = None,
+         read_ahead: ReadAhead | None = None) -> RunResult:
     """:func:`run` in its locked output folder (an :class:`~trackfusion.outdir.OutputFolder`):
     read, preprocess, smooth (in chunks or one batch), metrics, track geometry, evaluation
     against the reference, outputs; each a step of its own."""
     say = progress or (lambda _m: None)
     cfg = pipeline.config
     out = folder.path
-    wall = time.perf_counter()
+    wall = tic = time.perf_counter()
     timings: dict[str, float] = {}
-    tic = time.perf_counter()
     say(f"[{cfg.name}] reading {pipeline.path(cfg.inputs.log)}")
-    log, damage = _read(pipeline, say)
+    log, damage = _read(pipeline, say, read_ahead)
     release_free_memory()  # the reader's garbage
     timings["read_s"] = time.perf_counter() - tic
     tic = time.perf_counter()
