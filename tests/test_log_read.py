@@ -109,6 +109,31 @@ def test_the_run_takes_the_childs_log_the_same_arrays_as_read_here(tiny, monkeyp
     assert log.imu.t_s.size > 10_000 and log.imu.gyro_radps.flags.writeable
 
 
+def test_a_json_log_read_ahead_is_the_same_log(tiny, tmp_path):
+    """An all-JSON log (the older format), whose reader decodes in worker processes: the read-ahead
+    child starts them as the run's own process would (``forked.as_leading_child``)."""
+    from trackfusion.sensors.mcap_log import read_log, write_log
+    json_dir = tmp_path / "json"
+    shutil.copytree(tiny, json_dir)
+    write_log(json_dir / "log.mcap", read_log(tiny / "log.mcap"), encoding="json")
+    request = LogRequest.of(load_pipeline(json_dir / "pipeline.yaml"))
+    with read_ahead(str(json_dir / "pipeline.yaml")) as ahead:
+        log, _ = ahead.take(request)
+    _same_log(log, read_requested(request)[0])
+
+
+def _may_fork() -> tuple[bool, bool]:
+    with forked.as_leading_child():
+        leading = forked.can_fork()
+    return leading, forked.can_fork()
+
+
+def test_a_leading_child_may_fork_workers_for_its_block_only():
+    with ForkedTasks(always_fork=True) as tasks:
+        assert tasks.submit("asking", _may_fork).result() == (True, False)
+    assert _may_fork() == (True, True)  # this process: as it was
+
+
 def test_another_request_stops_the_child_and_reads_here(tiny, tmp_path):
     other = tmp_path / "other"
     shutil.copytree(tiny, other)

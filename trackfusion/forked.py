@@ -224,6 +224,19 @@ class ForkedTasks:
             self.wait()
 
 
+@contextlib.contextmanager
+def as_leading_child() -> Iterator[None]:
+    """In a forked child that does its parent's main work while the parent only prepares (the log
+    read ahead, trackfusion/log_read.py): :func:`can_fork` as in the main process for the block,
+    so that the child may start its own workers (the reader's decode workers of a JSON log)."""
+    global _IN_CHILD
+    was, _IN_CHILD = _IN_CHILD, False
+    try:
+        yield
+    finally:
+        _IN_CHILD = was
+
+
 def _at_lowest_priority(submitter_pid: int, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """``fn(*args, **kwargs)``, in a child of the process ``submitter_pid`` at the lowest priority."""
     if os.getpid() != submitter_pid:

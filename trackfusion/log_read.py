@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 from .errors import TrackfusionError
-from .forked import ForkedTask, ForkedTasks, can_fork
+from .forked import ForkedTask, ForkedTasks, as_leading_child, can_fork
 
 if TYPE_CHECKING:
     from .sensors.types import SensorLog
@@ -92,6 +92,13 @@ def written_request(pipeline_path: str) -> LogRequest | None:
     return LogRequest(log if log.is_absolute() else p.resolve().parent / log, topics, allow_truncated, str(p))
 
 
+def _read_as_leader(request: LogRequest) -> tuple["SensorLog", dict | None]:
+    """:func:`read_requested` in the read-ahead child, which may start the reader's decode workers
+    as the run's own process would (a JSON log's; CDR is decoded in the reading process)."""
+    with as_leading_child():
+        return read_requested(request)
+
+
 class ReadAhead:
     """A log being read in a forked child (:func:`read_ahead`) for ``request``."""
 
@@ -125,6 +132,6 @@ def read_ahead(pipeline_path: str) -> Iterator[ReadAhead | None]:
         return
     tasks = ForkedTasks(always_fork=True)
     try:
-        yield ReadAhead(request, tasks.submit("reading the log", read_requested, request), tasks)
+        yield ReadAhead(request, tasks.submit("reading the log", _read_as_leader, request), tasks)
     finally:
         tasks.kill()
