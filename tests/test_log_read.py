@@ -18,8 +18,9 @@ from trackfusion import forked, log_read
 from trackfusion.cli import main
 from trackfusion.errors import SensorDataError
 from trackfusion.forked import ForkedTasks
-from trackfusion.log_read import TOPIC_ROLES, LogRequest, read_ahead, read_requested, written_request
+from trackfusion.log_read import LogRequest, read_ahead, read_requested, written_request
 from trackfusion.pipeline import TopicsConfig, load_pipeline
+from trackfusion.sensors.ros2 import ROLES
 from trackfusion.simulation.scenarios import simulate_to_dir
 
 pytestmark = pytest.mark.skipif(not forked.can_fork(), reason="needs fork and 2 CPUs")
@@ -62,7 +63,7 @@ def _same_log(a, b) -> None:
 
 
 def test_the_roles_read_ahead_are_those_of_the_pipeline():
-    assert set(TOPIC_ROLES) == set(TopicsConfig.model_fields)
+    assert set(ROLES) == set(TopicsConfig.model_fields)
 
 
 @pytest.mark.parametrize("inputs", [{}, {"allow_truncated": True}, {"topics": {"imu": "/imu"}},

@@ -15,8 +15,8 @@ child's, raised where the run reads. The child is stopped (and reaped) whenever 
 without its log. Where no child may be forked (one CPU, no ``fork``, inside a worker process),
 nothing is read ahead.
 
-This module imports only what the command line has already loaded: the readers are imported in
-the function that reads.
+This module imports only what the command line has already loaded; the readers (and numpy with
+them) are imported where they are used.
 """
 
 from __future__ import annotations
@@ -31,11 +31,6 @@ from .forked import ForkedTask, ForkedTasks, as_leading_child, can_fork
 
 if TYPE_CHECKING:
     from .sensors.types import SensorLog
-
-#: the roles of ``inputs.topics`` (trackfusion/pipeline.py ``TopicsConfig``; tests/test_log_read.py
-#: checks the two agree)
-TOPIC_ROLES = ("imu", "gnss", "odometer")
-
 
 @dataclass(frozen=True)
 class LogRequest:
@@ -72,8 +67,11 @@ def read_requested(request: LogRequest) -> tuple["SensorLog", dict | None]:
 def written_request(pipeline_path: str) -> LogRequest | None:
     """The :class:`LogRequest` the pipeline YAML at ``pipeline_path`` makes if it validates, from
     its ``inputs`` section as written (paths as trackfusion/yamlio.py ``ConfigFile.path`` joins
-    them); None when that section is not plain enough to tell (the run then reads as usual)."""
-    from .yamlio import load_yaml
+    them); None when that section is not plain enough to tell (the run then reads as usual). The
+    roles of ``topics`` are the bag reader's (trackfusion/sensors/ros2.py ``ROLES``, which the child
+    imports anyway)."""
+    from .sensors.ros2 import ROLES
+    from .yamlio import ConfigFile, load_yaml
     p = Path(pipeline_path)
     try:
         data = load_yaml(p, "pipeline file")
@@ -87,9 +85,9 @@ def written_request(pipeline_path: str) -> LogRequest | None:
     if not isinstance(allow_truncated, bool) or not (topics is None or isinstance(topics, dict)):
         return None
     if topics is not None:
-        topics = tuple(sorted({role: topics.get(role) for role in TOPIC_ROLES}.items()))
-    log = Path(inputs["log"])
-    return LogRequest(log if log.is_absolute() else p.resolve().parent / log, topics, allow_truncated, str(p))
+        topics = tuple(sorted({role: topics.get(role) for role in ROLES}.items()))
+    as_loaded = ConfigFile(p.resolve().parent, str(p))  # as load_pipeline takes the YAML's folder
+    return LogRequest(as_loaded.path(inputs["log"]), topics, allow_truncated, str(p))
 
 
 def _read_as_leader(request: LogRequest) -> tuple["SensorLog", dict | None]:

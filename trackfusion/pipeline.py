@@ -296,8 +296,8 @@ def _read(pipeline: Pipeline, say: Callable[[str], None] = lambda _m: None, ahea
     (trackfusion/log_read.py), taken when it was read as this pipeline asks."""
     from .sensors import imu_axes
     cfg = pipeline.config
-    path = pipeline.path(cfg.inputs.log)
     request = LogRequest.of(pipeline)
+    path = request.path
     log, damage = ahead.take(request, lambda: _output_imports(cfg)) if ahead is not None else read_requested(request)
     if damage is not None:
         readable = ", ".join(f"{k} {v}" for k, v in damage["records_readable"].items()) or "no records"
