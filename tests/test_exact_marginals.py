@@ -14,10 +14,11 @@ import scipy.linalg
 from gtsam.symbol_shorthand import X
 
 from trackfusion.fusion import smoother
+from trackfusion.fusion.normal_solve import KEY_DIM
 
 SIGMA_REL_TOL = 1e-6
 #: tangent dimension of each kind of state (pose, velocity, bias, odometer scale, GNSS error, station)
-DIMS = {"x": 6, "v": 3, "b": 6, "s": 1, "e": 3, "t": 8}
+DIMS = KEY_DIM  # the smoother's variables (fusion/normal_solve.py)
 
 #: 10 s static, 60 m at 3 m/s, 5 s static
 TINY_OPEN_TRACK = ["motion.passes=1",

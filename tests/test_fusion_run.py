@@ -60,6 +60,20 @@ def test_ideal_chainage_and_scale(ideal_run):
     ref = np.interp(tab["t_s"], truth["t_s"], truth["chainage_m"] - truth["chainage_m"][0])
     assert np.max(np.abs(tab["chainage_m"] - ref)) < 5e-3  # odometer wheel path vs centreline chainage
     assert abs(result.metrics["odometer_scale_ppm"]["mean"]) < 1.0
+    assert abs(result.metrics["odometer_scale_ppm"]["drift_ppm_per_h"]) < 10.0  # an ideal wheel: none
+
+
+def test_odometer_scale_drift_figure_is_the_slope():
+    """metrics.json's drift of the odometer scale: the least-squares slope [ppm/h] over the
+    keyframes (numpy's line fit); a constant scale has none."""
+    from trackfusion.pipeline import _odometer_scale_figures
+    t_s = np.linspace(100.0, 1900.0, 901)
+    scale = 500e-6 + 3000e-6 * t_s / 3600.0 + 2e-6 * np.sin(2 * np.pi * t_s / 1800.0)
+    fig = _odometer_scale_figures(t_s, scale)
+    assert fig["drift_ppm_per_h"] == pytest.approx(np.polyfit(t_s / 3600.0, scale * 1e6, 1)[0], rel=1e-9)
+    flat = _odometer_scale_figures(t_s, np.full(t_s.size, 500e-6))
+    assert flat["drift_ppm_per_h"] == pytest.approx(0.0, abs=1e-9) and flat["mean"] == pytest.approx(500.0)
+    assert fig["first"] == pytest.approx(scale[0] * 1e6) and fig["last"] == pytest.approx(scale[-1] * 1e6)
 
 
 def test_output_files_follow_the_contract(ideal_run):

@@ -611,10 +611,17 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
         m["noise_estimates"] = {**m.get("noise_estimates", {}), **res.noise_components["groups"],
                                 "components": {k: v for k, v in res.noise_components.items() if k != "groups"}}
     if res.odometer_scale is not None:
-        m["odometer_scale_ppm"] = {"mean": float(res.odometer_scale.mean() * 1e6),
-                                   "first": float(res.odometer_scale[0] * 1e6),
-                                   "last": float(res.odometer_scale[-1] * 1e6)}
+        m["odometer_scale_ppm"] = _odometer_scale_figures(res.t_s, res.odometer_scale)
     return m
+
+
+def _odometer_scale_figures(t_s: np.ndarray, scale: np.ndarray) -> dict:
+    """The odometer scale error over the keyframes (K,) at times ``t_s`` (K,) [s]: its mean, first
+    and last [ppm], and its drift [ppm/h], the least-squares slope over the run."""
+    hours = (t_s - t_s.mean()) / 3600.0
+    span = float(hours @ hours)
+    return {"mean": float(scale.mean() * 1e6), "first": float(scale[0] * 1e6), "last": float(scale[-1] * 1e6),
+            "drift_ppm_per_h": float(hours @ (scale - scale.mean()) * 1e6 / span) if span > 0 else 0.0}
 
 
 def run(pipeline: Pipeline, out_dir: str | os.PathLike | None = None,

@@ -37,7 +37,7 @@ from .factors import STATION_STATE_DIM
 
 #: dimension of each of the smoother's variables by its symbol's character (fusion/smoother.py:
 #: pose, velocity, IMU bias, odometer scale, GNSS correlated error, total-station correction)
-KEY_DIM = {"x": 6, "v": 3, "b": 6, "s": 1, "e": 3, "t": STATION_STATE_DIM}
+KEY_DIM = {"x": 6, "v": 3, "b": 6, "s": 1, "d": 1, "e": 3, "t": STATION_STATE_DIM}
 
 
 @functools.lru_cache(maxsize=None)

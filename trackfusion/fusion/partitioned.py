@@ -5,7 +5,7 @@ Each linearised factor belongs to one **part**: the part (by time, cut every ``p
 from the first keyframe; never by the number of CPUs) of the earliest keyframe it involves, or
 of its earliest state when it involves no keyframe. A
 state's time is its keyframe's (``X``, ``V``), its segment's first keyframe's (bias ``B``,
-odometer scale ``S``), its fix's (GNSS correlated error ``E``), or the run's start (station
+odometer scale ``S`` and its drift rate ``D``), its fix's (GNSS correlated error ``E``), or the run's start (station
 corrections ``T``). A variable whose factors all belong to one part is **interior** to it;
 one with factors in two parts or more is a **separator** variable: the keyframes at a cut and
 the states the parts share (a bias or scale segment across a cut, the GNSS error chain across
@@ -67,7 +67,7 @@ def key_times(keys: np.ndarray, t_key: np.ndarray, bias_seg: np.ndarray, scale_s
     b = c == ord("b")
     t[b] = t_key[np.searchsorted(bias_seg, i[b], "left")]
     if scale_seg is not None:
-        s = c == ord("s")
+        s = (c == ord("s")) | (c == ord("d"))  # a scale segment's drift rate: its segment's time
         t[s] = t_key[np.searchsorted(scale_seg, i[s], "left")]
     if gnss_t_s is not None:
         e = c == ord("e")
@@ -512,17 +512,26 @@ class PartMarginals:
             self._trees[p] = _eliminate_all(g, self._orderings[p])
         return self._trees[p]
 
-    def covariances(self, part: int, keys: list[int]) -> dict[int, np.ndarray]:
+    def covariances(self, part: int, keys: list[int], exact: bool = False) -> dict[int, np.ndarray]:
         """The marginal covariances of ``keys``, all of part ``part``: by one pass down the
         part's tree where its cliques are wide (fusion/tree_marginals.py: exact to rounding, and
-        then the cheaper) and hold no hard constraint, else by GTSAM's per-key marginals
-        (:func:`marginal_covariance`). The choice follows the tree only: the same on any machine."""
+        then the cheaper) or ``exact`` is asked for, and they hold no hard constraint, else by
+        GTSAM's per-key marginals (:func:`marginal_covariance`). The choice follows the tree
+        only: the same on any machine."""
         if not keys:
             return {}
         cliques = cliques_top_down(self.tree(keys[0]), self._orderings[part])
-        if takes_the_pass(cliques):
+        if takes_the_pass(cliques, exact):
             return marginal_covariances(cliques, keys)
         return {k: marginal_covariance(self, k) for k in keys}
+
+    def exact_covariances(self, keys: list[int]) -> dict[int, np.ndarray]:
+        """The marginal covariances of ``keys`` of any parts, each part's by one pass down its
+        tree (:meth:`covariances` with ``exact``)."""
+        by_part: dict[int, list[int]] = {}
+        for k in keys:
+            by_part.setdefault(self._layout.home[int(k)], []).append(k)
+        return {k: v for p in sorted(by_part) for k, v in self.covariances(p, by_part[p], exact=True).items()}
 
     def marginalCovariance(self, key: int) -> np.ndarray:
         return self.tree(key).marginalCovariance(key)

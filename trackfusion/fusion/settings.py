@@ -81,16 +81,16 @@ class WheelPathSettings(_Factor):
 class OdometerFactorSettings(_Factor):
     """Distance increments between keyframes with a scale-error state per ``scale_segment_s``
     (docs/error_models.md, "Odometer scale"): ``scale_sigma_ppm`` the prior on the scale error
-    at the start (a wheel's diameter tolerance and wear: up to 1 %), ``scale_rate_sigma_ppm_per_h``
-    the prior on its drift rate (temperature, wear; null, the default: no drift model, the scale
-    a random walk of ``scale_random_walk_ppm_per_sqrt_h``), ``scale_rate_random_walk_ppm_per_h_per_sqrt_h``
-    how fast the drift rate may change (a steady drift costs nothing). The drift model is opt-in:
-    with time parts (``smoother.part_s``) its marginals are not yet the one-batch ones."""
+    at the start (a wheel's diameter tolerance and wear: up to 1 %); the scale a random walk of
+    ``scale_random_walk_ppm_per_sqrt_h`` plus a drift (temperature, wear) at a rate with a state
+    per segment: ``scale_rate_sigma_ppm_per_h`` the prior on the rate (null: no drift, the scale
+    a random walk alone), ``scale_rate_random_walk_ppm_per_h_per_sqrt_h`` how fast the rate may
+    change (a steady drift costs nothing)."""
 
     sigma_mm: float = Field(0.05, gt=0)
     scale_sigma_ppm: float = Field(10000.0, gt=0)
-    scale_rate_sigma_ppm_per_h: float | None = Field(None, gt=0)
-    scale_rate_random_walk_ppm_per_h_per_sqrt_h: float = Field(1000.0, gt=0)
+    scale_rate_sigma_ppm_per_h: float | None = Field(3000.0, gt=0)
+    scale_rate_random_walk_ppm_per_h_per_sqrt_h: float = Field(10.0, gt=0)
     scale_random_walk_ppm_per_sqrt_h: float = Field(20.0, gt=0)
     scale_segment_s: float = Field(10.0, gt=0)
     huber_k: float = Field(3.0, gt=0)

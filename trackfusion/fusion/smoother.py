@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Callable
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, E, S, T, V, X
+from gtsam.symbol_shorthand import B, D, E, S, T, V, X
 
 from .. import geodesy
 from ..errors import FusionError
@@ -37,10 +37,12 @@ from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, PartMarginals, cut_times,
                           joint_marginal_covariance, marginal_covariance, part_marginal_covariances)
 from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
+from .tree_marginals import cliques_top_down, marginal_covariances, takes_the_pass
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 if TYPE_CHECKING:
     from ..registration.readings import PrismReadings
+    from .settings import OdometerFactorSettings
 
 DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
@@ -219,7 +221,8 @@ class _Graph:
 @dataclass
 class _State:
     """The estimate as arrays: R (K,3,3), p (K,3), v (K,3), odometer scale s (M,), GNSS errors e (F,3),
-    total-station corrections ts (J,8)."""
+    total-station corrections ts (J,8), the odometer scale's drift rate d (M-1,) [1/h] (None
+    without its states)."""
 
     R: np.ndarray
     p: np.ndarray
@@ -227,13 +230,16 @@ class _State:
     s: np.ndarray | None
     e: np.ndarray
     ts: np.ndarray | None = None
+    d: np.ndarray | None = None
 
     @classmethod
     def of(cls, values: gtsam.Values, with_scale: bool) -> "_State":
         P = gtsam.utilities.extractPose3(values)
         s = gtsam.utilities.extractVectors(values, "s")[:, 0] if with_scale else None
+        d = gtsam.utilities.extractVectors(values, "d")
         return cls(P[:, :9].reshape(-1, 3, 3), P[:, 9:].copy(), gtsam.utilities.extractVectors(values, "v"), s,
-                   gtsam.utilities.extractVectors(values, "e"), gtsam.utilities.extractVectors(values, "t"))
+                   gtsam.utilities.extractVectors(values, "e"), gtsam.utilities.extractVectors(values, "t"),
+                   d[:, 0] if d.size else None)
 
 
 @dataclass(frozen=True)
@@ -247,6 +253,7 @@ class _Keyframes:
     static: np.ndarray
     bias_seg: np.ndarray
     scale_seg: np.ndarray | None
+    with_rate: bool = False  # the scale's drift rate states D (two scale segments or more, a rate prior)
 
     @property
     def with_scale(self) -> bool:
@@ -263,7 +270,13 @@ def _keyframe_layout(problem: FusionProblem, key_idx: np.ndarray) -> _Keyframes:
     # bias segment of each interval (the last keyframe belongs to the last interval's)
     bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
     bias_seg[-1] = bias_seg[-2]
-    return _Keyframes(key_idx, t_key, static, bias_seg, seg)
+    return _Keyframes(key_idx, t_key, static, bias_seg, seg,
+                      with_scale and _with_drift(fs.odometer, int(seg[-1]) + 1))
+
+
+def _with_drift(odometer: OdometerFactorSettings, n_seg: int) -> bool:
+    """Whether the odometer scale of ``n_seg`` segments has drift-rate states (docs/error_models.md)."""
+    return odometer.scale_rate_sigma_ppm_per_h is not None and n_seg >= 2
 
 
 @dataclass(frozen=True)
@@ -519,13 +532,14 @@ class _Builder:
         self._odometer_scale_model(st)
 
     def _odometer_scale_model(self, st) -> None:
-        """Prior and process model of the scale-error states S(0..M-1), one per scale segment:
-        a drifting scale, its rate a random walk (docs/error_models.md, "Odometer scale in the
-        fusion"). The prior on S(0) (the previous chunk's estimate after a chunk seam); one step
-        S(1) - S(0) ~ N(0, rw^2 + (rate sigma x segment)^2), the prior on the drift rate (rw:
-        the scale's random walk over one segment); then the second differences
-        S(m+1) - 2 S(m) + S(m-1) ~ N(0, 2/3 q^2 segment^3), q the drift rate's random walk
-        (an integrated random walk): a steady drift costs nothing."""
+        """Prior and process model of the scale-error states S(0..M-1), one per scale segment
+        (docs/error_models.md, "Odometer scale in the fusion"). The prior on S(0) (the previous
+        chunk's estimate after a chunk seam). The scale a random walk (rw over one segment)
+        plus a drift: with ``scale_rate_sigma_ppm_per_h`` set, a rate state D(m) [1/h] per
+        segment, S(m+1) - S(m) - D(m) segment / 3600 ~ N(0, rw^2), its prior D(0) ~ N(0,
+        rate sigma) and its own random walk D(m+1) - D(m) ~ N(0, q^2 segment / 3600), q in
+        1/h/sqrt(h): a steady drift costs nothing. The rate is in 1/h (not ppm/h) so that its
+        information is of the scale's order: the Bayes tree's marginals keep their digits."""
         n_seg = int(self.seg[-1]) + 1
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
@@ -533,26 +547,28 @@ class _Builder:
             scale0, scale_sigma = np.array([self.join.scale]), np.sqrt(self.join.scale_var + rw**2)
         self.g.add(gtsam.PriorFactorVector(S(0), scale0, gtsam.noiseModel.Isotropic.Sigma(1, scale_sigma)))
         self._count("odometer_scale", n_seg)
-        if st.scale_rate_sigma_ppm_per_h is None:  # the scale a random walk
+        if n_seg < 2:
+            return
+        if not _with_drift(st, n_seg):  # the scale a random walk
             rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
             for m in range(n_seg - 1):
                 self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
             return
-        if n_seg < 2:
-            return
-        rate_step = st.scale_rate_sigma_ppm_per_h * 1e-6 * st.scale_segment_s / 3600.0
-        self.g.add(gtsam.BetweenFactorVector(S(0), S(1), np.zeros(1),
-                                             gtsam.noiseModel.Isotropic.Sigma(1, np.hypot(rw, rate_step))))
-        if n_seg < 3:
-            return
-        m = np.arange(1, n_seg - 1)
-        keys = [S(0) + m - 1, S(0) + m, S(0) + m + 1]
-        J = [np.full((m.size, 1, 1), c) for c in (1.0, -2.0, 1.0)]
-        q = st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 / 3600.0 / 60.0  # [1/s^1.5]
-        sigma = np.full((m.size, 1), np.sqrt(2.0 / 3.0) * q * st.scale_segment_s**1.5)
+        self.g.add(gtsam.PriorFactorVector(D(0), np.zeros(1),
+                                           gtsam.noiseModel.Isotropic.Sigma(1, st.scale_rate_sigma_ppm_per_h * 1e-6)))
+        rate_rw = gtsam.noiseModel.Isotropic.Sigma(
+            1, st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0))
+        for m in range(n_seg - 2):
+            self.g.add(gtsam.BetweenFactorVector(D(m), D(m + 1), np.zeros(1), rate_rw))
+        self._count("odometer_scale_rate", n_seg - 1)
+        m = np.arange(n_seg - 1)
+        keys = [S(0) + m, S(0) + m + 1, D(0) + m]
+        per_rate = st.scale_segment_s / 3600.0  # scale change per segment of a rate of 1/h
+        J = [np.full((m.size, 1, 1), c) for c in (-1.0, 1.0, -per_rate)]
+        sigma = np.full((m.size, 1), rw)
 
         def build(state: _State) -> fx.LinearBlocks:
-            r = (state.s[m - 1] - 2.0 * state.s[m] + state.s[m + 1])[:, None]
+            r = (state.s[m + 1] - state.s[m] - per_rate * state.d[m])[:, None]
             return fx.LinearBlocks(keys, J, r, sigma)
 
         self.builders.append(("odometer_scale_drift", build))
@@ -838,7 +854,8 @@ def _past_graph(gfg: gtsam.GaussianFactorGraph, k: int, kf: _Keyframes,
                 gnss_t_s: np.ndarray | None) -> gtsam.GaussianFactorGraph:
     """The factors of ``gfg`` that involve only states up to keyframe ``k`` (the data before it)."""
     t_key, bias_seg, seg = kf.t_s, kf.bias_seg, kf.scale_seg
-    last = {ord("x"): k, ord("v"): k, ord("b"): int(bias_seg[k]), ord("s"): int(seg[k]) if seg is not None else -1}
+    last = {ord("x"): k, ord("v"): k, ord("b"): int(bias_seg[k]), ord("s"): int(seg[k]) if seg is not None else -1,
+            ord("d"): int(seg[k]) - 1 if seg is not None else -1}
     past = gtsam.GaussianFactorGraph()
     for i in range(gfg.size()):
         f = gfg.at(i)
@@ -1031,6 +1048,9 @@ def _initial_values(kf: _Keyframes, initial: _Initial, join: HandOver | None) ->
     if kf.with_scale:
         for m in range(int(kf.scale_seg[-1]) + 1):
             values.insert(S(m), np.zeros(1))
+        if kf.with_rate:
+            for m in range(int(kf.scale_seg[-1])):
+                values.insert(D(m), np.zeros(1))
     if join is not None:
         values.update(X(0), gtsam.Pose3(gtsam.Rot3(join.R_nb), join.pos_n))
         values.update(V(0), join.vel_n)
@@ -1360,14 +1380,22 @@ def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.Gaussian
     if gfg is None and sigma_parts is not None and isinstance(sol.tree, PartMarginals) \
             and sol.tree.partition is sigma_parts:
         return part_marginal_covariances(sigma_parts, sol.gfg, keys, usable_cpus(), station_keys, sol.tree)
+    # the solve's own tree(s) by one pass down each (fusion/tree_marginals.py): exact to rounding,
+    # where GTSAM's per-key marginals lose digits (4e-5 of a sigma along the scale's drift rate)
     parts = sigma_parts or _partition(problem, kf, MARGINAL_PART_S)
-    if gfg is None and (parts.count == 1 or partition is not None and problem.smoother.part_s <= MARGINAL_PART_S):
-        tree = sol.tree
+    if gfg is None and partition is not None and problem.smoother.part_s <= MARGINAL_PART_S:
+        return sol.tree.exact_covariances(keys), None
+    if gfg is None and parts.count == 1:
+        tree, ordering = sol.tree, sol.ordering
     elif parts.count == 1:
-        tree = _eliminate(gfg)
+        ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+        tree = _eliminate(gfg, ordering)
     else:
         return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus(),
                                          station_keys)
+    cliques = cliques_top_down(tree, ordering)
+    if takes_the_pass(cliques, exact=True):
+        return marginal_covariances(cliques, keys), None
     return {k: marginal_covariance(tree, k) for k in keys}, None
 
 

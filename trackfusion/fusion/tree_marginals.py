@@ -82,11 +82,11 @@ def cliques_top_down(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) ->
     return out
 
 
-def takes_the_pass(cliques: list[Clique]) -> bool:
+def takes_the_pass(cliques: list[Clique], exact: bool = False) -> bool:
     """Whether the cliques are wide enough for this pass to beat GTSAM's per-key marginals
-    (:data:`WIDE_CLIQUE_COLUMNS`) and hold no hard constraint (a zero sigma, which GTSAM's
-    marginals take and the square-root information cannot)."""
-    if not cliques or float(np.mean([c.columns for c in cliques])) < WIDE_CLIQUE_COLUMNS:
+    (:data:`WIDE_CLIQUE_COLUMNS`; with ``exact``, at any width) and hold no hard constraint (a
+    zero sigma, which GTSAM's marginals take and the square-root information cannot)."""
+    if not cliques or not exact and float(np.mean([c.columns for c in cliques])) < WIDE_CLIQUE_COLUMNS:
         return False
     return all(s is None or np.all(s > 0.0) for s in (c.sigmas() for c in cliques))
 

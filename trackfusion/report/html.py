@@ -224,7 +224,9 @@ def summary_section(run: RunFiles) -> str:
         ("output folder", str((run.shown_dir or run.run_dir).resolve())),
     ]
     if "odometer_scale_ppm" in m:
-        rows.append(("odometer scale (mean)", f"{m['odometer_scale_ppm']['mean']:.1f} ppm"))
+        sc = m["odometer_scale_ppm"]
+        rows.append(("odometer scale (mean; drift)",
+                     f"{sc['mean']:.1f} ppm; {sc.get('drift_ppm_per_h', 0.0):+.0f} ppm/h"))
     verdict = ""
     ev = m.get("evaluation")
     if ev:
