@@ -127,7 +127,8 @@ def test_chunked_run_keeps_the_wheel_path(runs):
 
 def test_later_chunks_apply_the_first_chunks_noise(runs, monkeypatch):
     """With the noise estimated (the default), the first chunk estimates each group's noise and
-    every later chunk applies the same factors (no estimate of its own); metrics.json says so."""
+    every later chunk applies the same factors (no estimate of its own); metrics.json says so.
+    The odometer scale's drift rate is handed over with its variance."""
     import trackfusion.fusion.chunks as chunks_module
     from trackfusion.pipeline import build_problem
     from trackfusion.sensors.mcap_log import read_log
@@ -149,8 +150,14 @@ def test_later_chunks_apply_the_first_chunks_noise(runs, monkeypatch):
     assert first["estimated_on"].startswith("the first chunk") and len(joins) == 4 and joins[0] is None
     applied = {g: {c: v["applied_variance_factor"] for c, v in comps.items()} for g, comps in first["groups"].items()}
     assert applied["nhc"]["lateral"] != 1.0  # the datasheet's NHC is far from this trolley's (docs/noise_estimation.md)
+    rate_prior_var = (problem.factors.odometer.scale_rate_sigma_ppm_per_h * 1e-6) ** 2
     for join in joins[1:]:
         assert join.noise_applied == applied
+        # the odometer scale's drift rate handed over with its variance, which the data narrowed
+        assert np.isfinite(join.rate) and 0.0 < join.rate_var < 0.9 * rate_prior_var
+    # each chunk starts from the last one's rate: what they learn adds up (measured sigmas 2618 /
+    # 1834 / 1710 ppm/h against the prior's 3000; a chunk learning it afresh: each about 2600)
+    assert joins[2].rate_var < joins[1].rate_var and joins[3].rate_var < joins[2].rate_var
 
 
 def test_the_removed_spacing_key_is_refused(runs):

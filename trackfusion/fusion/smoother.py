@@ -101,7 +101,8 @@ class HandOver:
     [m], or None; cov (9,9) or (12,12): joint marginal covariance of [pose (GTSAM tangent:
     rotation, position in ``b``), velocity, GNSS error] given the data up to t_s only (the next
     chunk holds the data after it: no information counted twice); bias_var (6,) and scale_var
-    (or None) the marginal variances of the bias and scale there, on the same data;
+    (or None) the marginal variances of the bias and scale there, on the same data; rate [1/h]
+    and rate_var (or None) the scale's drift rate there and its marginal variance;
     wheel_front: the chunk's keyframes in the :data:`WHEEL_FRONT_S` before ``t_s`` (times,
     attitudes, positions), the front wheel points of the next chunk's first wheel-path pairs;
     noise_applied: the groups' noise variance factors the chunk applied (estimated in the run's
@@ -122,6 +123,8 @@ class HandOver:
     scale_var: float | None
     wheel_front: WheelFront | None = None
     noise_applied: dict[str, dict[str, float]] | None = None
+    rate: float | None = None
+    rate_var: float | None = None
 
     @property
     def alignment(self) -> Alignment:
@@ -537,7 +540,7 @@ class _Builder:
         chunk's estimate after a chunk seam). The scale a random walk (rw over one segment)
         plus a drift: with ``scale_rate_sigma_ppm_per_h`` set, a rate state D(m) [1/h] per
         segment, S(m+1) - S(m) - D(m) segment / 3600 ~ N(0, rw^2), its prior D(0) ~ N(0,
-        rate sigma) and its own random walk D(m+1) - D(m) ~ N(0, q^2 segment / 3600), q in
+        rate sigma) (the previous chunk's after a seam) and its own random walk D(m+1) - D(m) ~ N(0, q^2 segment / 3600), q in
         1/h/sqrt(h): a steady drift costs nothing. The rate is in 1/h (not ppm/h) so that its
         information is of the scale's order: the Bayes tree's marginals keep their digits."""
         n_seg = int(self.seg[-1]) + 1
@@ -554,10 +557,12 @@ class _Builder:
             for m in range(n_seg - 1):
                 self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
             return
-        self.g.add(gtsam.PriorFactorVector(D(0), np.zeros(1),
-                                           gtsam.noiseModel.Isotropic.Sigma(1, st.scale_rate_sigma_ppm_per_h * 1e-6)))
-        rate_rw = gtsam.noiseModel.Isotropic.Sigma(
-            1, st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0))
+        rate_step = st.scale_rate_random_walk_ppm_per_h_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
+        rate0, rate_sigma = np.zeros(1), st.scale_rate_sigma_ppm_per_h * 1e-6
+        if self.join is not None and self.join.rate is not None:  # the previous chunk's, then one step
+            rate0, rate_sigma = np.array([self.join.rate]), np.sqrt(self.join.rate_var + rate_step**2)
+        self.g.add(gtsam.PriorFactorVector(D(0), rate0, gtsam.noiseModel.Isotropic.Sigma(1, rate_sigma)))
+        rate_rw = gtsam.noiseModel.Isotropic.Sigma(1, rate_step)
         for m in range(n_seg - 2):
             self.g.add(gtsam.BetweenFactorVector(D(m), D(m + 1), np.zeros(1), rate_rw))
         self._count("odometer_scale_rate", n_seg - 1)
@@ -892,14 +897,19 @@ def _hand_over(gfg: gtsam.GaussianFactorGraph, values: gtsam.Values, kf: _Keyfra
     keys.append(B(int(bias_seg[k])))
     if with_scale:
         keys.append(S(int(seg[k])))
+    rate_m = int(seg[k]) - 1 if kf.with_rate and seg[k] >= 1 else None  # the last step's rate up to k
+    if rate_m is not None:
+        keys.append(D(rate_m))
     past = _past_graph(gfg, k, kf, gnss.t_s if gnss is not None else None)
     cov = joint_marginal_covariance(past, keys)
     var = np.diag(cov)
+    rate = (float(state.d[rate_m]), float(var[d + 7])) if rate_m is not None else (None, None)
     front = (t_key >= t_key[k] - WHEEL_FRONT_S) & (np.arange(t_key.size) < k)
     return HandOver(k, float(t_key[k]), state.R[k].copy(), state.p[k].copy(), state.v[k].copy(), bias,
                     float(state.s[seg[k]]) if with_scale else None, e_t, e, cov[:d, :d], var[d:d + 6],
                     float(var[d + 6]) if with_scale else None,
-                    WheelFront(t_key[front].copy(), state.R[front].copy(), state.p[front].copy()))
+                    WheelFront(t_key[front].copy(), state.R[front].copy(), state.p[front].copy()),
+                    rate=rate[0], rate_var=rate[1])
 
 
 @dataclass
@@ -1057,6 +1067,8 @@ def _initial_values(kf: _Keyframes, initial: _Initial, join: HandOver | None) ->
         values.update(B(0), gtsam.imuBias.ConstantBias(join.bias[:3], join.bias[3:]))
         if kf.with_scale and join.scale is not None:
             values.update(S(0), np.array([join.scale]))
+        if kf.with_rate and join.rate is not None:
+            values.update(D(0), np.array([join.rate]))
     return values
 
 
