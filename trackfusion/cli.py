@@ -10,8 +10,7 @@ import argparse
 import sys
 from typing import NoReturn
 
-from .errors import ConfigError, TrackfusionError
-from .parallel import PartWorkerDied
+from .errors import ConfigError, TrackfusionError, WorkerDied
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -342,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.close()
         print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except PartWorkerDied as exc:  # not the input's fault: exit 1, one line
+    except WorkerDied as exc:  # not the input's fault: exit 1, one line
         progress.close()
         print(f"trackfusion {args.command}: error: {exc}", file=sys.stderr)
         return 1

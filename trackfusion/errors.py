@@ -2,8 +2,9 @@
 
 Every error the toolkit raises on purpose derives from :class:`TrackfusionError`.
 The command line turns any of them into exit code 2 and one line naming the
-file, field or record at fault (``str(error)``); anything else is an internal
-error (exit code 1).
+file, field or record at fault (``str(error)``); a worker process that died
+(:class:`WorkerDied`) gives exit code 1 and one line; anything else is an
+internal error (exit code 1).
 """
 
 from __future__ import annotations
@@ -43,6 +44,12 @@ class EvaluationError(TrackfusionError):
 
 class SimulationError(TrackfusionError):
     """A simulation scenario cannot be built as requested."""
+
+
+class WorkerDied(RuntimeError):
+    """A worker process (a forked child, a worker of the smoother's parts) ended without its
+    answer: killed, out of memory. Not a fault of the input, so not a :class:`TrackfusionError`:
+    the command line exits with code 1 and one line naming the work it was doing."""
 
 
 def config_error_from_validation(exc, source: str) -> ConfigError:

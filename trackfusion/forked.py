@@ -19,7 +19,7 @@ file that this process then maps, the rest through a pipe); :meth:`wait`
 takes the results in the order submitted and raises the first failure in this process: the
 child's exception itself (a :class:`~trackfusion.errors.TrackfusionError` stays one, so the
 command line still exits with code 2 and its one line), or :class:`ForkedTaskError` when a child
-died without an answer (killed, out of memory). Leaving the ``with`` block on an exception kills
+died without an answer (killed, out of memory: exit code 1, not the input's fault). Leaving the ``with`` block on an exception kills
 and reaps the children still running, so no child outlives a failed run.
 
 Without ``fork``, with fewer than 2 CPUs, inside a forked child or a worker process (e.g. of
@@ -50,15 +50,15 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, TypeVar
 if TYPE_CHECKING:  # (concurrent.futures is imported when a pool is used: not at the command line's start)
     from concurrent.futures import Future, ProcessPoolExecutor
 
-from .errors import TrackfusionError
+from .errors import TrackfusionError, WorkerDied
 
 #: False: run every task in this process, in turn (e.g. to compare timings)
 ENABLED = True
 _IN_CHILD = False
 
 
-class ForkedTaskError(TrackfusionError):
-    """A forked child died without handing back its result."""
+class ForkedTaskError(WorkerDied):
+    """A forked child died without handing back its result (exit code 1 on the command line)."""
 
 
 def usable_cpus() -> int:

@@ -35,10 +35,11 @@ import signal
 import threading
 from typing import Any, Callable, Iterator, Sequence
 
+from .errors import WorkerDied
 from .forked import can_fork, fork_context
 
 
-class PartWorkerDied(RuntimeError):
+class PartWorkerDied(WorkerDied):
     """A worker process of the smoother's parts ended without its answer (exit code 1 on the
     command line: not a fault of the input)."""
 
