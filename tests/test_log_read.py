@@ -211,6 +211,7 @@ def _check_one_answer() -> None:
 
 
 def test_arrays_come_back_as_they_were_with_no_file_left_open():
+    gc.collect()  # an earlier test's answers, collected here, would lower the count below
     fds = _open_fds()
     for _ in range(3):
         _check_one_answer()
@@ -219,3 +220,48 @@ def test_arrays_come_back_as_they_were_with_no_file_left_open():
     tasks.kill()
     gc.collect()  # the answers' arrays held their mappings (and each mapping a descriptor)
     assert _open_fds() == fds
+
+
+def _answer_files_open() -> list[str]:
+    """The in-memory answer files (forked.py) this process holds open."""
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if "trackfusion-answer" in target:
+            out.append(target)
+    return out
+
+
+def _report_answer_files(conn) -> None:
+    conn.send(_answer_files_open())
+    conn.close()
+
+
+def test_a_process_forked_while_a_task_runs_holds_none_of_its_answer_files():
+    """A worker forked while a task runs (a worker of the smoother's parts, of the reader's decode
+    pool) would keep the task's answer file, and with it the answer's memory, alive as long as it
+    runs. Every fork drops them; the task's child keeps its own, and its answer arrives whole."""
+    import multiprocessing
+    from trackfusion.forked import fork_context
+    with ForkedTasks(always_fork=True) as tasks:
+        task = tasks.submit("arrays later", _arrays_after, 0.5)
+        assert len(_answer_files_open()) == 1  # the running task's, here
+        here, there = multiprocessing.Pipe()
+        worker = fork_context().Process(target=_report_answer_files, args=(there,))
+        worker.start()
+        assert here.recv() == []
+        worker.join()
+        answer = task.result()
+    assert np.array_equal(answer["c"], _arrays()["c"])
+    del answer, task  # the arrays hold their mapping (and it a descriptor)
+    gc.collect()
+    assert _answer_files_open() == []
+
+
+def _arrays_after(delay_s: float) -> dict:
+    import time
+    time.sleep(delay_s)
+    return _arrays()

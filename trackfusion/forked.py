@@ -182,7 +182,12 @@ class ForkedTasks:
         buffers_fd = _answer_buffers_fd()
         gc.freeze()  # the child's collector leaves this process's objects (and their pages) alone
         parent_pid = os.getpid()
-        pid = os.fork()
+        global _KEPT_ANSWER_FD
+        _KEPT_ANSWER_FD = buffers_fd  # the one answer file the child keeps (:func:`_drop_answer_fds`)
+        try:
+            pid = os.fork()
+        finally:
+            _KEPT_ANSWER_FD = None
         if pid == 0:  # pragma: no cover (runs in the child; covered through its answers)
             _die_with_parent(parent_pid)
             _child(read_fd, write_fd, buffers_fd, (fn, args, kwargs))
@@ -265,8 +270,6 @@ def _child(read_fd: int, write_fd: int, buffers_fd: int | None, call: tuple[Call
     code = 0
     try:
         os.close(read_fd)
-        for fd in _ANSWER_FDS - {buffers_fd}:  # other tasks' answers: not this child's to hold
-            os.close(fd)
         fn, args, kwargs = call
         try:
             answer = (True, fn(*args, **kwargs))
@@ -284,6 +287,23 @@ def _child(read_fd: int, write_fd: int, buffers_fd: int | None, call: tuple[Call
 
 #: the answer buffers' files of the tasks still running (closed in every other child)
 _ANSWER_FDS: set[int] = set()
+#: the answer file a task's child keeps across its fork (every other process forked drops them all)
+_KEPT_ANSWER_FD: int | None = None
+
+
+def _drop_answer_fds() -> None:
+    """In every child forked from this process (a task's, a worker of the smoother's parts or of
+    a :class:`ForkedPool`): close the running tasks' answer files but the child's own, so that no
+    other process holds an answer's memory after this process has taken it."""
+    for fd in _ANSWER_FDS - {_KEPT_ANSWER_FD}:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _ANSWER_FDS.intersection_update({_KEPT_ANSWER_FD})
+
+
+os.register_at_fork(after_in_child=_drop_answer_fds)
 #: alignment [bytes] of each array in an answer's buffer file
 _BUFFER_ALIGN = 64
 
