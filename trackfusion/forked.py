@@ -19,8 +19,9 @@ file that this process then maps, the rest through a pipe); :meth:`wait`
 takes the results in the order submitted and raises the first failure in this process: the
 child's exception itself (a :class:`~trackfusion.errors.TrackfusionError` stays one, so the
 command line still exits with code 2 and its one line), or :class:`ForkedTaskError` when a child
-died without an answer (killed, out of memory: exit code 1, not the input's fault). Leaving the ``with`` block on an exception kills
-and reaps the children still running, so no child outlives a failed run.
+died without an answer (killed, out of memory: exit code 1, not the input's fault). Leaving the
+``with`` block on an exception kills and reaps the children still running, so no child outlives
+a failed run.
 
 Without ``fork``, with fewer than 2 CPUs, inside a forked child or a worker process (e.g. of
 ``trackfusion batch``, which runs surveys side by side already), or with :data:`ENABLED` False,

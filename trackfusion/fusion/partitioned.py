@@ -5,9 +5,9 @@ Each linearised factor belongs to one **part**: the part (by time, cut every ``p
 from the first keyframe; never by the number of CPUs) of the earliest keyframe it involves, or
 of its earliest state when it involves no keyframe. A
 state's time is its keyframe's (``X``, ``V``), its segment's first keyframe's (bias ``B``,
-odometer scale ``S`` and its drift rate ``D``), its fix's (GNSS correlated error ``E``), or the run's start (station
-corrections ``T``). A variable whose factors all belong to one part is **interior** to it;
-one with factors in two parts or more is a **separator** variable: the keyframes at a cut and
+odometer scale ``S`` and its drift rate ``D``), its fix's (GNSS correlated error ``E``), or the
+run's start (station corrections ``T``). A variable whose factors all belong to one part is
+**interior** to it; one with factors in two parts or more is a **separator** variable: the keyframes at a cut and
 the states the parts share (a bias or scale segment across a cut, the GNSS error chain across
 it, the station set-ups seen in several parts).
 
@@ -531,7 +531,8 @@ class PartMarginals:
         by_part: dict[int, list[int]] = {}
         for k in keys:
             by_part.setdefault(self._layout.home[int(k)], []).append(k)
-        return {k: v for p in sorted(by_part) for k, v in self.covariances(p, by_part[p], exact=True).items()}
+        return {k: v for p in sorted(by_part)
+                for k, v in self.covariances(p, by_part[p], exact=True).items()}
 
     def marginalCovariance(self, key: int) -> np.ndarray:
         return self.tree(key).marginalCovariance(key)

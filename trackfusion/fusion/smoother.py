@@ -36,8 +36,8 @@ from ..forked import ForkedTasks, can_fork, usable_cpus
 from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, PartMarginals, cut_times,
                           joint_marginal_covariance, marginal_covariance, part_marginal_covariances)
-from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from .tree_marginals import cliques_top_down, marginal_covariances, takes_the_pass
+from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 if TYPE_CHECKING:
@@ -540,9 +540,10 @@ class _Builder:
         chunk's estimate after a chunk seam). The scale a random walk (rw over one segment)
         plus a drift: with ``scale_rate_sigma_ppm_per_h`` set, a rate state D(m) [1/h] per
         segment, S(m+1) - S(m) - D(m) segment / 3600 ~ N(0, rw^2), its prior D(0) ~ N(0,
-        rate sigma) (the previous chunk's after a seam) and its own random walk D(m+1) - D(m) ~ N(0, q^2 segment / 3600), q in
-        1/h/sqrt(h): a steady drift costs nothing. The rate is in 1/h (not ppm/h) so that its
-        information is of the scale's order: the Bayes tree's marginals keep their digits."""
+        rate sigma^2) (the previous chunk's rate after a seam) and its own random walk
+        D(m+1) - D(m) ~ N(0, q^2 segment / 3600), q in 1/h/sqrt(h): a steady drift costs nothing.
+        The rate is in 1/h (not ppm/h) so that its information is of the scale's order: the
+        Bayes tree's marginals keep their digits."""
         n_seg = int(self.seg[-1]) + 1
         rw = st.scale_random_walk_ppm_per_sqrt_h * 1e-6 * np.sqrt(st.scale_segment_s / 3600.0)
         scale0, scale_sigma = np.zeros(1), st.scale_sigma_ppm * 1e-6
