@@ -161,6 +161,13 @@ class Layout:
             out.push_back(gfg.at(i))
         return out
 
+    def keys_by_part(self, keys) -> dict[int, list[int]]:
+        """``keys`` grouped by their home part (part -> keys, in the order given)."""
+        by_part: dict[int, list[int]] = {}
+        for k in keys:
+            by_part.setdefault(self.home[int(k)], []).append(int(k))
+        return by_part
+
 
 @dataclass
 class _Reduced:
@@ -323,6 +330,18 @@ def marginal_covariance(tree, key: int) -> np.ndarray:
         return R_inv @ R_inv.T
 
 
+def tree_covariances(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering, keys: list[int],
+                     exact: bool = False) -> dict[int, np.ndarray]:
+    """The marginal covariances of ``keys`` (frontal keys of ``tree``, eliminated in
+    ``ordering``): by one pass down the tree where its cliques are wide or ``exact`` is asked for,
+    and they hold no hard constraint (fusion/tree_marginals.py ``takes_the_pass``: exact to
+    rounding), else by GTSAM's per-key marginals (:func:`marginal_covariance`)."""
+    cliques = cliques_top_down(tree, ordering)
+    if takes_the_pass(cliques, exact):
+        return marginal_covariances(cliques, keys)
+    return {k: marginal_covariance(tree, k) for k in keys}
+
+
 def joint_marginal_covariance(gfg: gtsam.GaussianFactorGraph, keys: list[int]) -> np.ndarray:
     """Joint marginal covariance (sum of dims, square) of ``keys`` (in that order) by QR: every
     other variable eliminated first (COLAMD), the marginal Bayes net ``R x = d`` of the keys
@@ -357,9 +376,7 @@ def part_marginal_covariances(partition: Partition, gfg: gtsam.GaussianFactorGra
     whose layout and reduced factors are the ones made here otherwise (the same numbers): the
     processes then only make the trees, the children reading it from the memory they were forked with."""
     layout = made.layout if made is not None else partition.layout(gfg)
-    by_part: dict[int, list[int]] = {}
-    for k in keys:
-        by_part.setdefault(layout.home[int(k)], []).append(int(k))
+    by_part = layout.keys_by_part(keys)
 
     def reduce(group: list[int]) -> list[list[str]]:  # packed: a linear graph does not pickle
         if made is not None:
@@ -520,17 +537,12 @@ class PartMarginals:
         only: the same on any machine."""
         if not keys:
             return {}
-        cliques = cliques_top_down(self.tree(keys[0]), self._orderings[part])
-        if takes_the_pass(cliques, exact):
-            return marginal_covariances(cliques, keys)
-        return {k: marginal_covariance(self, k) for k in keys}
+        return tree_covariances(self.tree(keys[0]), self._orderings[part], keys, exact)
 
     def exact_covariances(self, keys: list[int]) -> dict[int, np.ndarray]:
         """The marginal covariances of ``keys`` of any parts, each part's by one pass down its
         tree (:meth:`covariances` with ``exact``)."""
-        by_part: dict[int, list[int]] = {}
-        for k in keys:
-            by_part.setdefault(self._layout.home[int(k)], []).append(k)
+        by_part = self._layout.keys_by_part(keys)
         return {k: v for p in sorted(by_part)
                 for k, v in self.covariances(p, by_part[p], exact=True).items()}
 

@@ -35,14 +35,13 @@ from .problem import FusionProblem, GnssFixes
 from ..forked import ForkedTasks, can_fork, usable_cpus
 from ..parallel import dask_client
 from .partitioned import (MARGINAL_PART_S, Partition, PartitionedSolver, PartMarginals, cut_times,
-                          joint_marginal_covariance, marginal_covariance, part_marginal_covariances)
-from .tree_marginals import cliques_top_down, marginal_covariances, takes_the_pass
+                          joint_marginal_covariance, part_marginal_covariances,
+                          tree_covariances)
 from .wheel_path import HAND_OVER_BUILDER, WheelFront, wheel_path_builder
 from ..registration.mislock import gate_prisms, prefused_rejections
 
 if TYPE_CHECKING:
     from ..registration.readings import PrismReadings
-    from .settings import OdometerFactorSettings
 
 DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
@@ -273,13 +272,9 @@ def _keyframe_layout(problem: FusionProblem, key_idx: np.ndarray) -> _Keyframes:
     # bias segment of each interval (the last keyframe belongs to the last interval's)
     bias_seg = np.floor((t_key - t_key[0]) / problem.keyframes.bias_segment_s).astype(np.int64)
     bias_seg[-1] = bias_seg[-2]
-    return _Keyframes(key_idx, t_key, static, bias_seg, seg,
-                      with_scale and _with_drift(fs.odometer, int(seg[-1]) + 1))
-
-
-def _with_drift(odometer: OdometerFactorSettings, n_seg: int) -> bool:
-    """Whether the odometer scale of ``n_seg`` segments has drift-rate states (docs/error_models.md)."""
-    return odometer.scale_rate_sigma_ppm_per_h is not None and n_seg >= 2
+    # drift-rate states (docs/error_models.md): a rate prior set and two scale segments or more
+    with_rate = with_scale and fs.odometer.scale_rate_sigma_ppm_per_h is not None and int(seg[-1]) >= 1
+    return _Keyframes(key_idx, t_key, static, bias_seg, seg, with_rate)
 
 
 @dataclass(frozen=True)
@@ -553,7 +548,7 @@ class _Builder:
         self._count("odometer_scale", n_seg)
         if n_seg < 2:
             return
-        if not _with_drift(st, n_seg):  # the scale a random walk
+        if not self.kf.with_rate:  # the scale a random walk
             rw_noise = gtsam.noiseModel.Isotropic.Sigma(1, rw)
             for m in range(n_seg - 1):
                 self.g.add(gtsam.BetweenFactorVector(S(m), S(m + 1), np.zeros(1), rw_noise))
@@ -1406,10 +1401,7 @@ def _sigma_covariances(problem: FusionProblem, sol: _Solved, gfg: gtsam.Gaussian
     else:
         return part_marginal_covariances(parts, gfg if gfg is not None else sol.gfg, keys, usable_cpus(),
                                          station_keys)
-    cliques = cliques_top_down(tree, ordering)
-    if takes_the_pass(cliques, exact=True):
-        return marginal_covariances(cliques, keys), None
-    return {k: marginal_covariance(tree, k) for k in keys}, None
+    return tree_covariances(tree, ordering, keys, exact=True), None
 
 
 def _sigma_parts(problem: FusionProblem, kf: _Keyframes, partition: Partition | None, join: HandOver | None,
