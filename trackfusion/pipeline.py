@@ -610,6 +610,8 @@ def _smoother_metrics(res: SmootherResult, info: dict) -> dict[str, Any]:
     if res.noise_components is not None:  # every other group's noise (fusion/noise_components.py)
         m["noise_estimates"] = {**m.get("noise_estimates", {}), **res.noise_components["groups"],
                                 "components": {k: v for k, v in res.noise_components.items() if k != "groups"}}
+    if res.gnss_time_constant is not None:  # the GNSS correlated time constant (fusion/gnss_time_constant.py)
+        m["noise_estimates"] = {**m.get("noise_estimates", {}), "gnss_time_constant": res.gnss_time_constant}
     if res.odometer_scale is not None:
         m["odometer_scale_ppm"] = _odometer_scale_figures(res.t_s, res.odometer_scale)
     return m

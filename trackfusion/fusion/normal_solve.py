@@ -160,6 +160,15 @@ def whitened(cond: gtsam.GaussianConditional, who: str) -> tuple[np.ndarray, np.
     return R, S
 
 
+def log_abs_determinant(tree: gtsam.GaussianBayesTree, ordering: gtsam.Ordering) -> float:
+    """``log |det R|`` of ``tree``'s triangular factor (eliminated in ``ordering``): half of
+    ``log det(A^T A)`` of the whitened system it was made from [-]. Why not GTSAM's
+    ``logDeterminant``: it takes the log of ``R``'s signed diagonal, NaN wherever QR left a
+    negative entry (tests/test_gnss_time_constant.py)."""
+    return float(sum(np.sum(np.log(np.abs(np.diag(whitened(cond, "log determinant")[0]))))
+                     for _, cond, _, _ in each_clique(tree, ordering)))
+
+
 def _separator_rows(parents: list[list[int]], offset: dict[int, int]) -> list[np.ndarray]:
     """Per clique, the rows (n_s,) of its separator keys ``parents`` (each key's :func:`key_dim`
     rows from its ``offset``), made for all cliques at once."""

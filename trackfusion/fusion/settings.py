@@ -113,6 +113,11 @@ class GnssFactorSettings(_Factor):
     significantly different from 1 (the white sigma at least ``min_sigma_mm``), and the gate
     decided on the estimated noise
     (fusion/gnss_noise.py, docs/noise_estimation.md).
+
+    ``estimate_time_constant``: the correlated part's time constant estimated by the survey's
+    marginal likelihood after the solve, and the survey solved again with it when
+    ``correlation_time_s`` lies outside its 95 % interval (fusion/gnss_time_constant.py; off by
+    default: it costs about 25 eliminations of the whole graph, and a second solve when applied).
     """
 
     covariance_scale: float = Field(1.0, gt=0)
@@ -124,6 +129,7 @@ class GnssFactorSettings(_Factor):
     gate_chi2: float = Field(21.1, gt=0)
     accept_float: bool = True
     estimate_white_noise: bool = True
+    estimate_time_constant: bool = False
 
 
 class InclinometerFactorSettings(_Factor):

@@ -25,6 +25,7 @@ from ..errors import FusionError
 from ..rotations import so3_exp, ypr_from_R
 from . import factors as fx
 from . import gnss_noise
+from . import gnss_time_constant as gtc
 from . import noise_components as nc
 from .alignment import Alignment, back_to_start, initial_alignment
 from .convergence import StepHistory
@@ -87,6 +88,7 @@ class SmootherResult:
     station_cov: np.ndarray | None = None  # (8J,8J) joint marginal covariance of station_states (estimated ones)
     gnss_noise: "gnss_noise.GnssNoiseEstimate | None" = None  # the GNSS white noise from the residuals
     noise_components: dict | None = None  # every other group's noise, metrics.json's (fusion/noise_components.py)
+    gnss_time_constant: dict | None = None  # the GNSS correlated time constant estimated (fusion/gnss_time_constant.py)
 
 
 @dataclass
@@ -978,6 +980,12 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     sigma_parts = _sigma_parts(problem, kf, partition, join, hand_over_t_s)
     components = _noise_components(problem, join.noise_applied if join is not None else None)
     rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say, sigma_parts)
+    time_constant = _time_constant(problem, rounds, gates, join is not None or hand_over_t_s is not None, say)
+    if time_constant is not None and time_constant.applies:  # solved again with the estimate
+        first_s = time.perf_counter() - tic
+        again = smooth(_with_time_constant(problem, time_constant.estimate_s), progress, preintegrated=preintegrated)
+        again.timings_s["solve_s"] += first_s  # the first solve and the estimate count in the solve
+        return replace(again, gnss_time_constant=time_constant.to_json())
     timings["solve_s"] = time.perf_counter() - tic
     noise = gates.final_noise(say)
     components_json = _components_json(components, fs, say)
@@ -999,7 +1007,32 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           station_states=None if gates.prisms is None else state.ts,
                           station_cov=station_cov,
                           rejected_prism=sorted(gates.rejected_prism, key=lambda r: (r["t_s"], r["station"])),
-                          hand_over=hand_over, gnss_noise=noise, noise_components=components_json)
+                          hand_over=hand_over, gnss_noise=noise, noise_components=components_json,
+                          gnss_time_constant=time_constant.to_json() if time_constant is not None else None)
+
+
+def _time_constant(problem: FusionProblem, rounds: _Rounds, gates: "_Gates", chunked: bool,
+                   say: Callable[[str], None]) -> "gtc.TimeConstantEstimate | None":
+    """The GNSS correlated error's time constant from the solve ``rounds`` when
+    ``factors.gnss.estimate_time_constant`` (fusion/gnss_time_constant.py); None when off, without
+    GNSS or its correlated model. A chunk of a long run keeps the configured one (said)."""
+    st = problem.factors.gnss
+    if not (st.enabled and st.estimate_time_constant) or gates.gnss is None or not gates.used.size:
+        return None
+    if chunked:
+        say("GNSS correlated time constant: not estimated in a run solved in chunks (the configured one kept)")
+        return None
+    est = gtc.estimate(rounds.G.graph, rounds.sol.values, rounds.G.builders, rounds.sol.state,
+                       st.correlation_time_s, problem.gnss.t_s[gates.used], say)
+    if est is not None:
+        say(est.summary())
+    return est
+
+
+def _with_time_constant(problem: FusionProblem, tau_s: float) -> FusionProblem:
+    """``problem`` with the GNSS correlated time constant ``tau_s`` [s], not to be estimated again."""
+    gnss = problem.factors.gnss.model_copy(update={"correlation_time_s": tau_s, "estimate_time_constant": False})
+    return replace(problem, factors=problem.factors.model_copy(update={"gnss": gnss}))
 
 
 def _preintegration(problem: FusionProblem, key_idx: np.ndarray, preintegrated: "Preintegrated | None",

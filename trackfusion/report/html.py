@@ -494,7 +494,7 @@ def _noise_rows(ne: dict) -> list[dict]:
     (datasheet) and estimated sigma and the factor the smoother applied."""
     rows = []
     for group, comps in ne.items():
-        if group in ("imu", "gnss", "components") or not isinstance(comps, dict):
+        if group in ("imu", "gnss", "components", "gnss_time_constant") or not isinstance(comps, dict):
             continue
         for comp, e in comps.items():
             unit = next((k[len("configured_sigma_"):] for k in e if k.startswith("configured_sigma_")), None)
@@ -520,13 +520,25 @@ def _noise_rows(ne: dict) -> list[dict]:
 def noise_section(m: dict) -> str:
     """Each measurement group's noise estimated from the data beside its datasheet value
     (docs/noise_estimation.md)."""
-    rows = _noise_rows(m.get("noise_estimates") or {})
+    ne = m.get("noise_estimates") or {}
+    rows = _noise_rows(ne)
     if not rows:
         return ""
     return _section("noise", "Sensor noise estimated from the data",
                     "<p class='note'>Configured (datasheet) and estimated sigma of each measurement group; the "
                     "smoother applies an estimate that differs significantly (applied sigma scale).</p>"
-                    + _table(rows))
+                    + _table(rows) + _time_constant_part(ne.get("gnss_time_constant")))
+
+
+def _time_constant_part(tc: dict | None) -> str:
+    """The GNSS correlated error's time constant estimated (fusion/gnss_time_constant.py), if it was."""
+    if not tc:
+        return ""
+    lo, hi = tc["interval_95_s"]
+    return ("<h3>GNSS correlated error: time constant</h3>"
+            + _kv([("configured", f"{tc['configured_s']:g} s"), ("estimated", f"{tc['estimate_s']:.0f} s"),
+                   ("95 % interval", f"{lo:.0f} s to " + (f"{hi:.0f} s" if hi is not None else "unbounded")),
+                   ("applied", "yes: the survey solved again with it" if tc["applied"] else "no")]))
 
 
 def rejected_section(m: dict) -> str:

@@ -1,0 +1,124 @@
+"""The GNSS correlated error's time constant from the data (fusion/gnss_time_constant.py): the
+log-determinant against numpy's, the likelihood against the dense Gaussian one, the interval of
+an exact parabola, and a short survey whose time constant was drawn at 10 s."""
+
+import gtsam
+import numpy as np
+import pytest
+import yaml
+from gtsam.symbol_shorthand import E
+
+from surveys import SHORT_OPEN_TRACK
+from trackfusion import pipeline as P
+from trackfusion.fusion import gnss_time_constant as gtc
+from trackfusion.fusion.factors import LinearBlocks, gauss_markov_residual
+from trackfusion.fusion.normal_solve import log_abs_determinant
+from trackfusion.simulation.scenarios import simulate_to_dir
+
+
+def test_log_abs_determinant_where_gtsam_gives_nan():
+    """QR leaves negative diagonal entries in R; GTSAM's logDeterminant is then NaN, ours is
+    half numpy's log det(A^T A)."""
+    rng = np.random.default_rng(1)
+    unit = gtsam.noiseModel.Unit.Create(3)
+    gfg, A = gtsam.GaussianFactorGraph(), np.zeros((12, 9))
+    for i in range(4):  # a loop of three 3-D variables (the smoother's error states) with random blocks
+        j, k = i % 3, (i + 1) % 3
+        a, b = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+        gfg.add(gtsam.JacobianFactor(E(j), a, E(k), b, np.zeros(3), unit))
+        A[3 * i:3 * i + 3, 3 * j:3 * j + 3] += a
+        A[3 * i:3 * i + 3, 3 * k:3 * k + 3] += b
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    tree = gfg.eliminateMultifrontal(ordering, gtsam.EliminateQR)
+    assert np.isnan(tree.logDeterminant())  # the reason for our own
+    np.testing.assert_allclose(log_abs_determinant(tree, ordering), 0.5 * np.linalg.slogdet(A.T @ A)[1], rtol=1e-12)
+
+
+def _chain(n: int, dt: float, tau0: float, s: float, sigma_w: float, y: np.ndarray):
+    """Fixes ``y`` (n,3) [m] of a Gauss-Markov error (stationary sigma ``s``, time constant ``tau0``)
+    plus white noise ``sigma_w``: the GTSAM-built factors (the fixes and the first state's prior)
+    and the steps' blocks at zero error."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for i in range(n):
+        values.insert(E(i), np.zeros(3))
+        graph.add(gtsam.PriorFactorVector(E(i), y[i], gtsam.noiseModel.Isotropic.Sigma(3, sigma_w)))
+    graph.add(gtsam.PriorFactorVector(E(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, s)))
+    phi = np.full((n - 1, 3), np.exp(-dt / tau0))
+    e = np.zeros((n, 3))
+    r, J = gauss_markov_residual(e[:-1], e[1:], phi)
+    blocks = [("gnss_error", LinearBlocks([E(0) + np.arange(n - 1), E(1) + np.arange(n - 1)], J, r,
+                                          s * np.sqrt(1.0 - phi**2)))]
+    return graph, values, blocks, e
+
+
+def _dense_log_likelihood(y: np.ndarray, dt: float, tau: float, s: float, sigma_w: float) -> float:
+    """log N(y; 0, s^2 exp(-|t_i - t_j| / tau) + sigma_w^2 I), the three axes independent."""
+    t = np.arange(y.shape[0]) * dt
+    cov = s**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / tau) + sigma_w**2 * np.eye(t.size)
+    _, logdet = np.linalg.slogdet(cov)
+    return float(sum(-0.5 * y[:, k] @ np.linalg.solve(cov, y[:, k]) - 0.5 * logdet for k in range(3)))
+
+
+def test_likelihood_differences_equal_the_dense_gaussian_ones():
+    """At the solve's stationary variance (g = the time constants' ratio, so that the first
+    state's prior is right) the likelihood of two time constants differs as the dense Gaussian
+    likelihood of the fixes does."""
+    n, dt, tau0, s, sigma_w = 60, 1.0, 30.0, 0.01, 0.004
+    rng = np.random.default_rng(2)
+    y = rng.normal(scale=0.01, size=(n, 3))
+    graph, values, blocks, e = _chain(n, dt, tau0, s, sigma_w, y)
+    gfg = graph.linearize(values)
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
+    ll = {tau: gtc.log_likelihood(graph, values, blocks, e, ordering, tau0 / tau, tau0 / tau) for tau in (10.0, 30.0, 90.0)}
+    dense = {tau: _dense_log_likelihood(y, dt, tau, s, sigma_w) for tau in ll}
+    for tau in (10.0, 90.0):
+        np.testing.assert_allclose(ll[tau] - ll[30.0], dense[tau] - dense[30.0], rtol=1e-8, atol=1e-8)
+
+
+def test_interval_of_a_parabola_and_of_a_flat_end():
+    """A profile exactly parabolic in log tau: its peak, and the 95 % interval where it lies
+    within 1.92 of it; a profile flat towards long time constants: unbounded above."""
+    tau = 300.0 * 2.0 ** np.arange(-6, 4)
+    x = np.log2(tau)
+    est = gtc.interval_from_profile(tau, -2.0 * (x - np.log2(100.0)) ** 2, 300.0)
+    half = np.sqrt(gtc.HALF_CHI2_95 / 2.0)
+    np.testing.assert_allclose(est.estimate_s, 100.0, rtol=1e-12)
+    np.testing.assert_allclose(est.interval_s, (100.0 * 2.0**-half, 100.0 * 2.0**half), rtol=1e-12)
+    assert est.applies  # 300 s lies outside
+    flat = gtc.interval_from_profile(tau, -0.1 * np.maximum(0.0, 8.0 - x) ** 2, 300.0)
+    assert flat.interval_s[1] == np.inf and not flat.applies
+    assert flat.to_json()["interval_95_s"][1] is None
+
+
+@pytest.fixture(scope="module")
+def short_surveys(tmp_path_factory):
+    """The short open-track survey with the correlated error's time constant drawn at 10 and at
+    300 s, run with the estimate on (configured 300 s)."""
+    root = tmp_path_factory.mktemp("gnss-tau")
+    out = {}
+    for true_s in (10, 300):
+        d = root / f"tau-{true_s}"
+        simulate_to_dir("open-track-gnss", d, seed=1, overrides=SHORT_OPEN_TRACK + [f"gnss.gm_tau_s={true_s}"])
+        cfg = yaml.safe_load((d / "pipeline.yaml").read_text())
+        cfg["factors"]["gnss"] = {"enabled": True, "estimate_time_constant": True}
+        (d / "estimate.yaml").write_text(yaml.safe_dump(cfg))
+        out[true_s] = P.run(P.load_pipeline(d / "estimate.yaml"), d / "out").metrics
+    return out
+
+
+def test_a_short_time_constant_is_found_and_applied(short_surveys):
+    """Drawn at 10 s over a 200 s survey: the drawn time constant inside the 95 % interval, the
+    configured 300 s outside it, so the survey is solved again with the estimate (reported in
+    metrics.json; measured: 20 s, 8.7-49 s)."""
+    tc = short_surveys[10]["noise_estimates"]["gnss_time_constant"]
+    lo, hi = tc["interval_95_s"]
+    assert lo <= 10.0 <= hi < 300.0 and lo <= tc["estimate_s"] <= hi
+    assert tc["applied"]
+
+
+def test_the_datasheet_time_constant_is_kept_when_the_data_allow_it(short_surveys):
+    """Drawn at the configured 300 s: it lies inside the interval and nothing is applied."""
+    tc = short_surveys[300]["noise_estimates"]["gnss_time_constant"]
+    assert not tc["applied"]
+    lo, hi = tc["interval_95_s"]
+    assert lo <= 300.0 and (hi is None or hi >= 300.0)
