@@ -16,11 +16,12 @@ with ``c`` the least-squares cost at the linear optimum, ``R`` the QR factor of 
 ``theta = (tau, g)``. Only those rows change between evaluations; each evaluation is one QR
 elimination of the whole graph, in the solve's ordering.
 
-**The profile.** For each ``tau`` of an octave grid around the configured one (from four fix
-intervals to the survey's length), the steps' variance is set to the diffusion the solve had
+**The profile.** At octaves of the configured time constant (from four fix intervals to the
+survey's length), from the configured one outwards until the profile has fallen 1.92 below its
+best on each side (:func:`walk_grid`; the grid's end otherwise), the steps' variance is set to the diffusion the solve had
 (``tau / tau0`` times its stationary variance) times ``g``, searched in steps of 4 from 1 and
-closed by a parabola in ``log g``: the profile likelihood ``l(tau)``. The estimate is the parabola's peak in ``log tau``
-through the best grid node, and its 95 % interval where ``l`` lies within 1.92 of the peak
+closed by a parabola in ``log g``: the profile likelihood ``l(tau)``. The estimate is the peak
+of the parabola in ``log tau`` through the best node, and its 95 % interval where ``l`` lies within 1.92 of the peak
 (unbounded above when it does to the grid's end: long time constants trade with the trajectory,
 which the IMU and odometer do not hold over hundreds of seconds).
 
@@ -144,22 +145,30 @@ def _steps_with(blocks: fx.LinearBlocks, e: np.ndarray, tau_ratio: float, g: flo
     return fx.LinearBlocks(blocks.keys, J, r, sigma)
 
 
-def log_likelihood(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, blocks: Sequence[tuple[str, fx.LinearBlocks]],
-                   e: np.ndarray, ordering: gtsam.Ordering, tau_ratio: float, g: float) -> float:
-    """``l(theta)`` of the module docstring [-] (up to a constant) with the ``gnss_error`` steps of
-    ``blocks`` (name, the solve's blocks at ``values``) at time constant ``tau0 / tau_ratio`` and
-    stationary variance ``g / tau_ratio`` times the solve's; ``graph`` the solve's GTSAM-built
-    factors, ``e`` (N,3) [m] the error states."""
+def fixed_part(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+               blocks: Sequence[tuple[str, fx.LinearBlocks]]) -> gtsam.GaussianFactorGraph:
+    """The linearised system at ``values`` without the ``gnss_error`` steps: ``graph`` (the
+    GTSAM-built factors) and every other of ``blocks`` (name, blocks at ``values``); made once."""
     gfg = graph.linearize(values)
-    log_sigma = 0.0
     for name, b in blocks:
-        if name == "gnss_error":
-            b = _steps_with(b, e, tau_ratio, g)
-            log_sigma += float(np.sum(np.log(b.sigma)))
-        fx.to_jacobian_factors(b, gfg)
+        if name != "gnss_error":
+            fx.to_jacobian_factors(b, gfg)
+    return gfg
+
+
+def log_likelihood(fixed: gtsam.GaussianFactorGraph, steps: fx.LinearBlocks, e: np.ndarray,
+                   ordering: gtsam.Ordering, tau_ratio: float, g: float) -> float:
+    """``l(theta)`` of the module docstring [-] (up to a constant): the system ``fixed``
+    (:func:`fixed_part`) with the Gauss-Markov ``steps`` (the solve's blocks, time constant
+    ``tau0``) at time constant ``tau0 / tau_ratio`` and stationary variance ``g / tau_ratio`` times
+    the solve's, eliminated in ``ordering``; ``e`` (N,3) [m] the error states."""
+    gfg = gtsam.GaussianFactorGraph()
+    gfg.push_back(fixed)  # the same factors, shared: elimination does not change them
+    b = _steps_with(steps, e, tau_ratio, g)
+    fx.to_jacobian_factors(b, gfg)
     tree = gfg.eliminateMultifrontal(ordering, gtsam.EliminateQR)
     cost = 2.0 * gfg.error(tree.optimize())
-    return -0.5 * cost - log_abs_determinant(tree, ordering) - log_sigma
+    return -0.5 * cost - log_abs_determinant(tree, ordering) - float(np.sum(np.log(b.sigma)))
 
 
 def estimate(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -174,19 +183,40 @@ def estimate(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     # solve's Huber weights the estimate at a true 30 s was 43 s, 34-56 s; without, 36 s, 27-48 s)
     blocks = [(name, replace(build(state), huber_k=None) if name == "gnss" else build(state))
               for name, build in builders]
-    if "gnss_error" not in dict(blocks) or fix_t_s.size < 30:
+    steps = dict(blocks).get("gnss_error")
+    if steps is None or fix_t_s.size < 30:
         return None
     grid = tau_grid(configured_s, float(np.median(np.diff(fix_t_s))), float(fix_t_s[-1] - fix_t_s[0]))
-    gfg = graph.linearize(values)
-    for _, b in blocks:
-        fx.to_jacobian_factors(b, gfg)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(gfg)
-    profile = []
-    for tau in grid:
+    fixed = fixed_part(graph, values, blocks)
+    with_steps = gtsam.GaussianFactorGraph()
+    with_steps.push_back(fixed)
+    fx.to_jacobian_factors(steps, with_steps)
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(with_steps)
+
+    def profile(tau: float) -> float:
         say(f"  GNSS time constant: likelihood at {tau:.0f} s")
-        profile.append(profile_over_diffusion(
-            lambda g, ratio=configured_s / tau: log_likelihood(graph, values, blocks, state.e, ordering, ratio, g)))
-    return interval_from_profile(grid, np.array(profile), configured_s)
+        return profile_over_diffusion(lambda g: log_likelihood(fixed, steps, state.e, ordering, configured_s / tau, g))
+    lo, hi, values_at = walk_grid(profile, grid, int(np.argmin(np.abs(np.log(grid / configured_s)))))
+    return interval_from_profile(grid[lo:hi + 1], np.array(values_at), configured_s)
+
+
+def walk_grid(f: Callable[[float], float], grid: np.ndarray, start: int) -> tuple[int, int, list[float]]:
+    """``f`` on the nodes of ``grid`` from ``start`` outwards, on each side until a node falls more
+    than :data:`HALF_CHI2_95` below the best so far (what the interval needs) or the grid ends.
+    Returns the first and last node taken and ``f`` at the nodes between (both included)."""
+    taken = {start: f(float(grid[start]))}
+    lo = hi = start
+    while True:
+        level = max(taken.values()) - HALF_CHI2_95
+        grew = False
+        if lo > 0 and taken[lo] >= level:
+            lo -= 1
+            taken[lo], grew = f(float(grid[lo])), True
+        if hi < grid.size - 1 and taken[hi] >= level:
+            hi += 1
+            taken[hi], grew = f(float(grid[hi])), True
+        if not grew:
+            return lo, hi, [taken[i] for i in range(lo, hi + 1)]
 
 
 def profile_over_diffusion(ll: Callable[[float], float], max_steps: int = 6) -> float:
