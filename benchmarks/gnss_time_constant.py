@@ -48,7 +48,8 @@ def run_case(seed: int, true_s: float, configured_s: float, estimate: bool = Fal
             "vertical_mse_5m_mm": m["relative_accuracy"]["vertical"]["mse_at_threshold_mm"],
             "vertical_adev_5m_mm": m["relative_accuracy"]["vertical"]["adev_at_threshold_mm"],
             "gnss_correlated_applied": [ge["horizontal"]["applied_variance_factor"],
-                                        ge["vertical"]["applied_variance_factor"]]}
+                                        ge["vertical"]["applied_variance_factor"]],
+            "gnss_correlated_sigma_mm": [ge["horizontal"]["estimated_sigma_mm"], ge["vertical"]["estimated_sigma_mm"]]}
 
 
 def main() -> None:
@@ -56,6 +57,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--cases", nargs="+", default=["1000:300,600,1000", "30:300,45,30"])
     ap.add_argument("--estimate", action="store_true", help="estimate the time constant too")
+    ap.add_argument("--results", type=Path, help="the JSON to write (default: by --estimate, above)")
     args = ap.parse_args()
     runs = []
     print("true s  configured s  RMS(e/sigma) e / n / u  vertical RMS mm  5 m vertical MSE / ADEV mm")
@@ -70,7 +72,7 @@ def main() -> None:
                 tc = r["time_constant"]
                 print(f"        time constant estimated {tc['estimate_s']:.0f} s (95 %: {tc['interval_95_s'][0]:.0f}"
                       f" to {tc['interval_95_s'][1] or float('inf'):.0f} s), applied: {tc['applied']}")
-    results = RESULTS.with_name("gnss_time_constant_estimated.json") if args.estimate else RESULTS
+    results = args.results or (RESULTS.with_name("gnss_time_constant_estimated.json") if args.estimate else RESULTS)
     results.parent.mkdir(parents=True, exist_ok=True)
     results.write_text(json.dumps({"seed": args.seed, "runs": runs}, indent=1))
     print(f"wrote {results}")
