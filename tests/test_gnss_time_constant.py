@@ -109,9 +109,9 @@ def short_surveys(tmp_path_factory):
     """The short open-track survey with the correlated error's time constant drawn at 10 and at
     300 s, run with the estimate on (configured 300 s)."""
     root = tmp_path_factory.mktemp("gnss-tau")
-    out = {}
+    out = {"dirs": {}}
     for true_s in (10, 300):
-        d = root / f"tau-{true_s}"
+        d = out["dirs"][true_s] = root / f"tau-{true_s}"
         simulate_to_dir("open-track-gnss", d, seed=1, overrides=SHORT_OPEN_TRACK + [f"gnss.gm_tau_s={true_s}"])
         cfg = yaml.safe_load((d / "pipeline.yaml").read_text())
         cfg["factors"]["gnss"] = {"enabled": True, "estimate_time_constant": True}
@@ -136,3 +136,29 @@ def test_the_datasheet_time_constant_is_kept_when_the_data_allow_it(short_survey
     assert not tc["applied"]
     lo, hi = tc["interval_95_s"]
     assert lo <= 300.0 and (hi is None or hi >= 300.0)
+
+
+def test_a_run_in_chunks_estimates_in_its_first_and_hands_it_on(short_surveys, tmp_path, monkeypatch):
+    """In chunks of 60 s (30 s overlap) the first chunk estimates the time constant (drawn at
+    10 s) and, applied, every later chunk solves with it: handed over at each join, and
+    metrics.json says where it was estimated."""
+    import trackfusion.fusion.chunks as chunks_module
+    from trackfusion.sensors.mcap_log import read_log
+
+    d = short_surveys["dirs"][10]
+    pipeline = P.load_pipeline(d / "estimate.yaml")
+    problem, _ = P.build_problem(pipeline, read_log(d / "log.mcap"), lambda _m: None)
+    joins, real = [], chunks_module.smooth
+
+    def spy(sub, say, join=None, hand_over_t_s=None):
+        joins.append(join)
+        return real(sub, say, join=join, hand_over_t_s=hand_over_t_s)
+
+    monkeypatch.setattr(chunks_module, "smooth", spy)
+    res, _ = chunks_module.smooth_in_chunks(problem, 60.0, 30.0, 5)
+    tc = res.gnss_time_constant
+    assert tc["estimated_on"].startswith("the first chunk") and tc["applied"]
+    lo, hi = tc["interval_95_s"]
+    assert lo <= 10.0 <= hi < 300.0
+    assert len(joins) == 4 and joins[0] is None
+    assert all(j.gnss_time_constant_s == tc["estimate_s"] for j in joins[1:])

@@ -167,6 +167,14 @@ def _first_chunk_noise(first: SmootherResult) -> dict | None:
     return {**first.noise_components, "estimated_on": "the first chunk; the later chunks apply its factors"}
 
 
+def _first_chunk_time_constant(first: SmootherResult) -> dict | None:
+    """The GNSS correlated time constant as the first chunk estimated it (every chunk applies
+    what the first solved with), saying so; None when not estimated."""
+    if first.gnss_time_constant is None:
+        return None
+    return {**first.gnss_time_constant, "estimated_on": "the first chunk; the later chunks apply what it solved with"}
+
+
 def _check_seam(join: HandOver) -> None:
     if not np.all(np.isfinite(join.cov)):
         from ..errors import FusionError
@@ -189,4 +197,5 @@ def _combined(results: list[SmootherResult], parts: list[dict[str, np.ndarray]],
                           cat["sigma_att_rad"], first.alignment, sum(r.iterations for r in results),
                           sum(r.initial_cost for r in results), sum(r.final_cost for r in results), counts,
                           sorted(rejected, key=lambda r: r["t_s"]), timings,
-                          noise_components=_first_chunk_noise(first))
+                          noise_components=_first_chunk_noise(first),
+                          gnss_time_constant=_first_chunk_time_constant(first))

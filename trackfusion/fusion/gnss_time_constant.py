@@ -49,7 +49,8 @@ DIFFUSION_STEP = 4.0
 
 @dataclass(frozen=True)
 class TimeConstantEstimate:
-    """The estimate [s], its 95 % interval [s] (``inf``: unbounded above), the configured time
+    """The estimate [s], its 95 % interval [s] (``inf``: unbounded above; 0: not bounded below
+    within the grid, whose first node is four fix intervals), the configured time
     constant [s], whether it lies outside the interval (``applies``), and the profile
     (time constants [s], log-likelihood relative to its peak [-])."""
 

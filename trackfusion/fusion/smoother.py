@@ -107,7 +107,9 @@ class HandOver:
     wheel_front: the chunk's keyframes in the :data:`WHEEL_FRONT_S` before ``t_s`` (times,
     attitudes, positions), the front wheel points of the next chunk's first wheel-path pairs;
     noise_applied: the groups' noise variance factors the chunk applied (estimated in the run's
-    first chunk, fusion/noise_components.py; None: not estimated), which the next applies too.
+    first chunk, fusion/noise_components.py; None: not estimated), which the next applies too;
+    gnss_time_constant_s [s]: the GNSS correlated error's time constant the chunk solved with
+    (estimated in the run's first chunk when asked, fusion/gnss_time_constant.py), the next's too.
     """
 
     k: int
@@ -126,6 +128,7 @@ class HandOver:
     noise_applied: dict[str, dict[str, float]] | None = None
     rate: float | None = None
     rate_var: float | None = None
+    gnss_time_constant_s: float | None = None
 
     @property
     def alignment(self) -> Alignment:
@@ -955,6 +958,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     say = progress or (lambda _m: None)
     timings: dict[str, float] = {}
     tic = time.perf_counter()
+    problem = _with_handed_over(problem, join)
     imu, fs = problem.imu, problem.factors
     if imu.t_s.size < 10:
         raise FusionError("the IMU log holds fewer than 10 samples")
@@ -980,12 +984,10 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     sigma_parts = _sigma_parts(problem, kf, partition, join, hand_over_t_s)
     components = _noise_components(problem, join.noise_applied if join is not None else None)
     rounds = _solve_in_rounds(problem, b, values, gates, partition, components, say, sigma_parts)
-    time_constant = _time_constant(problem, rounds, gates, join is not None or hand_over_t_s is not None, say)
+    # estimated in one batch or a run's first chunk; the later chunks take the first's
+    time_constant = _time_constant(problem, rounds, gates, say) if join is None else None
     if time_constant is not None and time_constant.applies:  # solved again with the estimate
-        first_s = time.perf_counter() - tic
-        again = smooth(_with_time_constant(problem, time_constant.estimate_s), progress, preintegrated=preintegrated)
-        again.timings_s["solve_s"] += first_s  # the first solve and the estimate count in the solve
-        return replace(again, gnss_time_constant=time_constant.to_json())
+        return _solved_again(problem, time_constant, progress, hand_over_t_s, preintegrated, time.perf_counter() - tic)
     timings["solve_s"] = time.perf_counter() - tic
     noise = gates.final_noise(say)
     components_json = _components_json(components, fs, say)
@@ -997,8 +999,7 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
     tic = time.perf_counter()
     (sig_t, sig_pos, sig_att), hand_over, station_cov = _marginals(problem, rounds, b.soft, partition, kf,
                                                                    hand_over_t_s, gates, sigma_parts)
-    if hand_over is not None and components is not None:
-        hand_over = replace(hand_over, noise_applied={g: dict(c) for g, c in components.applied.items()})
+    hand_over = _handed_on(hand_over, fs, components)
     timings["marginals_s"] = time.perf_counter() - tic
     scale = state.s[kf.scale_seg] if kf.with_scale else None
     return SmootherResult(kf.t_s, kf.idx, state.R, state.p, state.v, biases[:, 3:], biases[:, :3], scale,
@@ -1011,22 +1012,46 @@ def smooth(problem: FusionProblem, progress: Callable[[str], None] | None = None
                           gnss_time_constant=time_constant.to_json() if time_constant is not None else None)
 
 
-def _time_constant(problem: FusionProblem, rounds: _Rounds, gates: "_Gates", chunked: bool,
+def _time_constant(problem: FusionProblem, rounds: _Rounds, gates: "_Gates",
                    say: Callable[[str], None]) -> "gtc.TimeConstantEstimate | None":
     """The GNSS correlated error's time constant from the solve ``rounds`` when
     ``factors.gnss.estimate_time_constant`` (fusion/gnss_time_constant.py); None when off, without
-    GNSS or its correlated model. A chunk of a long run keeps the configured one (said)."""
+    GNSS or its correlated model."""
     st = problem.factors.gnss
     if not (st.enabled and st.estimate_time_constant) or gates.gnss is None or not gates.used.size:
-        return None
-    if chunked:
-        say("GNSS correlated time constant: not estimated in a run solved in chunks (the configured one kept)")
         return None
     est = gtc.estimate(rounds.G.graph, rounds.sol.values, rounds.G.builders, rounds.sol.state,
                        st.correlation_time_s, problem.gnss.t_s[gates.used], say)
     if est is not None:
         say(est.summary())
     return est
+
+
+def _solved_again(problem: FusionProblem, time_constant: "gtc.TimeConstantEstimate",
+                  progress: Callable[[str], None] | None, hand_over_t_s: float | None,
+                  preintegrated: "Preintegrated", first_s: float) -> SmootherResult:
+    """:func:`smooth` again with the estimated GNSS time constant, the first solve and the
+    estimate (``first_s`` [s]) counted in its solve time, the estimate reported."""
+    again = smooth(_with_time_constant(problem, time_constant.estimate_s), progress,
+                   hand_over_t_s=hand_over_t_s, preintegrated=preintegrated)
+    again.timings_s["solve_s"] += first_s
+    return replace(again, gnss_time_constant=time_constant.to_json())
+
+
+def _with_handed_over(problem: FusionProblem, join: HandOver | None) -> FusionProblem:
+    """A later chunk's ``problem`` with the GNSS time constant the first chunk solved with."""
+    if join is None or join.gnss_time_constant_s is None:
+        return problem
+    return _with_time_constant(problem, join.gnss_time_constant_s)
+
+
+def _handed_on(hand_over: HandOver | None, fs, components: "nc.NoiseComponents | None") -> HandOver | None:
+    """``hand_over`` with what the next chunk solves with too: the GNSS time constant of the
+    factor settings ``fs`` and the groups' noise factors ``components`` applied."""
+    if hand_over is None:
+        return None
+    return replace(hand_over, gnss_time_constant_s=fs.gnss.correlation_time_s,
+                   noise_applied=None if components is None else {g: dict(c) for g, c in components.applied.items()})
 
 
 def _with_time_constant(problem: FusionProblem, tau_s: float) -> FusionProblem:
