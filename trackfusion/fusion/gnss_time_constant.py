@@ -21,9 +21,11 @@ survey's length), from the configured one outwards until the profile has fallen 
 best on each side (:func:`walk_grid`; the grid's end otherwise), the steps' variance is set to the diffusion the solve had
 (``tau / tau0`` times its stationary variance) times ``g``, searched in steps of 4 from 1 and
 closed by a parabola in ``log g``: the profile likelihood ``l(tau)``. The estimate is the peak
-of the parabola in ``log tau`` through the best node, and its 95 % interval where ``l`` lies within 1.92 of the peak
-(unbounded above when it does to the grid's end: long time constants trade with the trajectory,
-which the IMU and odometer do not hold over hundreds of seconds).
+of the parabola in ``log tau`` through the best node; its 95 % interval spans the nodes whose
+``l`` lies within 1.92 of the peak (unbounded above when the last does: long time constants trade
+with the trajectory, which the IMU and odometer do not hold over hundreds of seconds). The
+configured time constant is replaced when its own ``l`` lies more than 1.92 below the peak (the
+likelihood-ratio test at 95 %): a flat, bumpy profile rejects nothing.
 
 The fixes that passed the gate enter at their full weight (the Gaussian model the likelihood is
 of), not the solve's Huber weights. Not modelled: the first error state's prior (3 rows) keeps
@@ -51,7 +53,7 @@ DIFFUSION_STEP = 4.0
 class TimeConstantEstimate:
     """The estimate [s], its 95 % interval [s] (``inf``: unbounded above; 0: not bounded below
     within the grid, whose first node is four fix intervals), the configured time
-    constant [s], whether it lies outside the interval (``applies``), and the profile
+    constant [s], whether the likelihood-ratio test rejects it (``applies``), and the profile
     (time constants [s], log-likelihood relative to its peak [-])."""
 
     configured_s: float
@@ -99,14 +101,11 @@ def _peak(x: np.ndarray, y: np.ndarray, i: int) -> tuple[float, float]:
     return float(x[i] + u * h), float(y[i] + b * u + c * u * u)
 
 
-def _crossing(x: np.ndarray, y: np.ndarray, level: float, i: int, step: int) -> float:
-    """Where ``y`` first falls below ``level`` going from node ``i`` by ``step`` (+1 / -1) over
-    equally spaced ``x``: between the nodes ``j`` and ``j + step`` where it does, on the parabola
-    through ``j - 1 .. j + 1`` (a profile this peaked is far from linear between octaves), else
-    linearly; +-inf when it does not fall below within the grid."""
-    j = i
-    while 0 <= j + step < x.size and y[j + step] >= level:
-        j += step
+def _crossing(x: np.ndarray, y: np.ndarray, level: float, j: int, step: int) -> float:
+    """Where ``y`` falls below ``level`` between node ``j`` (at or above it) and ``j + step`` over
+    equally spaced ``x``: on the parabola through ``j - 1 .. j + 1`` where it curves down (a
+    profile this peaked is far from linear between octaves), else linearly; +-inf when ``j`` is
+    the grid's last node that way."""
     if not 0 <= j + step < x.size:
         return float(np.inf * step)
     if 0 < j < x.size - 1:
@@ -121,17 +120,22 @@ def _crossing(x: np.ndarray, y: np.ndarray, level: float, i: int, step: int) -> 
 def interval_from_profile(tau_s: np.ndarray, log_likelihood: np.ndarray, configured_s: float
                           ) -> TimeConstantEstimate:
     """:class:`TimeConstantEstimate` from the profile ``log_likelihood`` (T,) at the octave grid
-    ``tau_s`` (T,) [s] (module docstring)."""
-    x = np.log2(tau_s)
-    i = int(np.argmax(log_likelihood))
-    x_hat, peak = _peak(x, log_likelihood, i)
-    peak = max(peak, float(log_likelihood[i]))
+    ``tau_s`` (T,) [s] (module docstring). The interval spans every node within 1.92 of the peak
+    (a profile that dips below that level and comes back is not cut at the dip); the configured
+    time constant is rejected by the likelihood-ratio test of its own node (of the interval when
+    it is not a node)."""
+    x, y = np.log2(tau_s), np.asarray(log_likelihood, dtype=float)
+    i = int(np.argmax(y))
+    x_hat, peak = _peak(x, y, i)
+    peak = max(peak, float(y[i]))
     level = peak - HALF_CHI2_95
-    lo, hi = _crossing(x, log_likelihood, level, i, -1), _crossing(x, log_likelihood, level, i, +1)
+    above = np.flatnonzero(y >= level)
+    lo, hi = _crossing(x, y, level, int(above[0]), -1), _crossing(x, y, level, int(above[-1]), +1)
     interval = (float(2.0 ** lo) if np.isfinite(lo) else 0.0, float(2.0 ** hi) if np.isfinite(hi) else np.inf)
-    applies = not interval[0] <= configured_s <= interval[1]
+    node = np.flatnonzero(np.isclose(tau_s, configured_s, rtol=1e-9))
+    applies = bool(y[node[0]] < level) if node.size else not interval[0] <= configured_s <= interval[1]
     return TimeConstantEstimate(float(configured_s), float(2.0 ** x_hat), interval, applies,
-                                [float(t) for t in tau_s], [float(v - peak) for v in log_likelihood])
+                                [float(t) for t in tau_s], [float(v - peak) for v in y])
 
 
 def _steps_with(blocks: fx.LinearBlocks, e: np.ndarray, tau_ratio: float, g: float) -> fx.LinearBlocks:

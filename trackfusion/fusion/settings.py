@@ -115,8 +115,8 @@ class GnssFactorSettings(_Factor):
     (fusion/gnss_noise.py, docs/noise_estimation.md).
 
     ``estimate_time_constant``: the correlated part's time constant estimated by the survey's
-    marginal likelihood after the solve, and the survey solved again with it when
-    ``correlation_time_s`` lies outside its 95 % interval (fusion/gnss_time_constant.py; off by
+    marginal likelihood after the solve, and the survey solved again with it when the
+    likelihood-ratio test (95 %) rejects ``correlation_time_s`` (fusion/gnss_time_constant.py; off by
     default: it costs about 20 eliminations of the whole graph, and a second solve when applied).
     """
 
