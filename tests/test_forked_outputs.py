@@ -44,6 +44,17 @@ def test_a_task_runs_in_another_process_and_hands_back_its_result():
     assert pid != os.getpid() and np.array_equal(value, [0.0, 2.0, 4.0])
 
 
+def test_fork_map_gives_the_values_in_turn_and_raises_a_childs_error():
+    """The first item here, the others in forked children: the same list as in turn (the pids
+    say where each ran); a child's exception is raised as it was."""
+    items = [np.arange(3.0), np.arange(4.0), np.arange(5.0)]
+    mapped = forked.fork_map("doubling", _double, items)
+    assert [p == os.getpid() for _, p in mapped] == [True, False, False]
+    assert all(np.array_equal(v, 2 * x) for (v, _), x in zip(mapped, items))
+    with pytest.raises(SensorDataError, match=r"^some\.csv: record 7: bad value$"):
+        forked.fork_map("failing", lambda fail: _fail() if fail else 0, [False, True])
+
+
 def _niceness():
     return os.getpid(), os.nice(0)
 

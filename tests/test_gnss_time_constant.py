@@ -81,7 +81,7 @@ def test_the_walk_takes_what_the_interval_needs():
     same estimate and interval as the whole grid's, from fewer evaluations."""
     tau = 300.0 * 2.0 ** np.arange(-6, 4)  # 4.7 .. 2400 s, the configured 300 s at node 6
     f = lambda t: -2.0 * (np.log2(t) - np.log2(40.0)) ** 2  # noqa: E731
-    lo, hi, vals = gtc.walk_grid(f, tau, 6)
+    lo, hi, vals = gtc.walk_grid(lambda ts: [f(t) for t in ts], tau, 6)
     whole = gtc.interval_from_profile(tau, f(tau), 300.0)
     walked = gtc.interval_from_profile(tau[lo:hi + 1], np.array(vals), 300.0)
     # 18.75 s is the first node 1.92 below the peak (at 37.5 s) on the left, 600 s on the right

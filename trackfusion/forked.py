@@ -363,6 +363,18 @@ def _answer(sent: bytes, buffers_fd: int | None) -> tuple[bool, Any]:
     return pickle.loads(data, buffers=[view[at:at + n] for at, n in layout])
 
 
+def fork_map(what: str, fn: Callable[[_T], _R], items: list[_T]) -> list[_R]:
+    """``[fn(x) for x in items]``: the items after the first each in a forked child while this
+    process computes the first (in turn where :func:`can_fork` says no; the same values either
+    way). ``what`` names the work in error messages; a child's exception is raised here."""
+    if len(items) < 2 or not can_fork(len(items)):
+        return [fn(x) for x in items]
+    with ForkedTasks() as tasks:
+        rest = [tasks.submit(what, fn, x) for x in items[1:]]
+        first = fn(items[0])
+        return [first, *(task.result() for task in rest)]
+
+
 class ForkedPool:
     """``workers`` forked worker processes (a ``concurrent.futures`` pool, forked at the first
     :meth:`submit`: a spawned worker would import the caller's main script again, and every import
