@@ -57,13 +57,8 @@ def series_fit(sim: Path, drawn_s: float) -> dict:
     t, err = drawn_series(sim)
     grid = drawn_s * 2.0 ** (np.arange(-12, 13) / 4.0)
     ll = np.array([profile_log_likelihood(t, err, white_mm, float(tau)) for tau in grid])
-    est = interval_from_profile(grid, ll, drawn_s)
-    return {"estimate_s": est.estimate_s, "interval_95_s": [_finite(v) for v in est.interval_s]}
-
-
-def _finite(x: float) -> float | None:
-    """``x``, or None (JSON's null) for an unbounded end."""
-    return float(x) if np.isfinite(x) else None
+    est = interval_from_profile(grid, ll, drawn_s).to_json()  # (an unbounded end: null)
+    return {"estimate_s": est["estimate_s"], "interval_95_s": est["interval_95_s"]}
 
 
 def main() -> None:
@@ -73,11 +68,10 @@ def main() -> None:
     for r in runs:
         sim = CACHE / f"gnss-tau-{r['true_s']:g}-{r['seed']}"
         fit = series_fit(sim, r["true_s"])
-        lo, hi = r["time_constant"]["interval_95_s"]
-        hi = np.inf if hi is None else hi
+        smoother = {k: r["time_constant"][k] for k in ("estimate_s", "interval_95_s")}
+        lo, hi = smoother["interval_95_s"][0], smoother["interval_95_s"][1] or np.inf
         holds = bool(lo <= fit["estimate_s"] <= hi)
-        out.append({"seed": r["seed"], "drawn_s": r["true_s"], "series": fit,
-                    "smoother": {"estimate_s": r["time_constant"]["estimate_s"], "interval_95_s": [lo, _finite(hi)]},
+        out.append({"seed": r["seed"], "drawn_s": r["true_s"], "series": fit, "smoother": smoother,
                     "holds_series_fit": holds})
         f_lo, f_hi = fit["interval_95_s"][0], fit["interval_95_s"][1] or np.inf
         print(f"{r['seed']:4d}  {r['true_s']:7.0f}  {fit['estimate_s']:6.0f} ({f_lo:4.0f}-{f_hi:5.0f})"

@@ -160,19 +160,12 @@ def _summary(res: SmootherResult) -> SmootherResult:
                    sigma_att_rad=empty, hand_over=None)
 
 
-def _first_chunk_noise(first: SmootherResult) -> dict | None:
-    """The groups' noise as the first chunk estimated it (every chunk applies it), saying so."""
-    if first.noise_components is None:
+def _on_the_first_chunk(estimate: dict | None, later: str) -> dict | None:
+    """An estimate (metrics.json's) the first chunk made, saying so and what the ``later`` chunks
+    do with it; None when not estimated."""
+    if estimate is None:
         return None
-    return {**first.noise_components, "estimated_on": "the first chunk; the later chunks apply its factors"}
-
-
-def _first_chunk_time_constant(first: SmootherResult) -> dict | None:
-    """The GNSS correlated time constant as the first chunk estimated it (every chunk applies
-    what the first solved with), saying so; None when not estimated."""
-    if first.gnss_time_constant is None:
-        return None
-    return {**first.gnss_time_constant, "estimated_on": "the first chunk; the later chunks apply what it solved with"}
+    return {**estimate, "estimated_on": f"the first chunk; the later chunks {later}"}
 
 
 def _check_seam(join: HandOver) -> None:
@@ -197,5 +190,6 @@ def _combined(results: list[SmootherResult], parts: list[dict[str, np.ndarray]],
                           cat["sigma_att_rad"], first.alignment, sum(r.iterations for r in results),
                           sum(r.initial_cost for r in results), sum(r.final_cost for r in results), counts,
                           sorted(rejected, key=lambda r: r["t_s"]), timings,
-                          noise_components=_first_chunk_noise(first),
-                          gnss_time_constant=_first_chunk_time_constant(first))
+                          noise_components=_on_the_first_chunk(first.noise_components, "apply its factors"),
+                          gnss_time_constant=_on_the_first_chunk(first.gnss_time_constant,
+                                                                 "apply what it solved with"))

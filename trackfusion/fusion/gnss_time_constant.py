@@ -89,13 +89,19 @@ def tau_grid(configured_s: float, fix_interval_s: float, duration_s: float) -> n
     return grid[keep]
 
 
+def _parabola(y: np.ndarray, i: int) -> tuple[float, float]:
+    """``(b, c)`` of the parabola ``y[i] + b u + c u^2`` through nodes ``i - 1, i, i + 1`` of an
+    equally spaced grid (``u`` in node steps from node ``i``, an interior node)."""
+    return (y[i + 1] - y[i - 1]) / 2.0, (y[i + 1] + y[i - 1] - 2.0 * y[i]) / 2.0
+
+
 def _peak(x: np.ndarray, y: np.ndarray, i: int) -> tuple[float, float]:
     """Peak ``(x, y)`` of the parabola through nodes ``i - 1, i, i + 1`` of equally spaced ``x``
     (the node itself at an end or where the three do not curve down)."""
     if i == 0 or i == x.size - 1:
         return float(x[i]), float(y[i])
     h = x[i + 1] - x[i]
-    b, c = (y[i + 1] - y[i - 1]) / 2.0, (y[i + 1] + y[i - 1] - 2.0 * y[i]) / 2.0
+    b, c = _parabola(y, i)
     if c >= 0.0:
         return float(x[i]), float(y[i])
     u = float(np.clip(-b / (2.0 * c), -1.0, 1.0))
@@ -110,7 +116,7 @@ def _crossing(x: np.ndarray, y: np.ndarray, level: float, j: int, step: int) -> 
     if not 0 <= j + step < x.size:
         return float(np.inf * step)
     if 0 < j < x.size - 1:
-        b, c = (y[j + 1] - y[j - 1]) / 2.0, (y[j + 1] + y[j - 1] - 2.0 * y[j]) / 2.0
+        b, c = _parabola(y, j)
         disc = b * b - 4.0 * c * (y[j] - level)
         if c < 0.0 and disc >= 0.0:  # the root of y[j] + b u + c u^2 = level on the side of ``step``
             u = (-b - step * np.sqrt(disc)) / (2.0 * c)
