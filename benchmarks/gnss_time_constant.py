@@ -42,7 +42,8 @@ def run_case(seed: int, true_s: float, configured_s: float, estimate: bool = Fal
     path.write_text(yaml.safe_dump(cfg))
     m = run(load_pipeline(path), sim / f"{name}-out", force=True).metrics
     ge = m["noise_estimates"]["gnss_error"]
-    return {"time_constant": m["noise_estimates"].get("gnss_time_constant"),"true_s": true_s, "configured_s": configured_s,
+    return {"time_constant": m["noise_estimates"].get("gnss_time_constant"),
+            "true_s": true_s, "configured_s": configured_s,
             "rms_z": [m["consistency_rms_error_over_sigma"][a] for a in "enu"],
             "vertical_abs_rms_mm": m["absolute_error"]["vertical"]["rms_mm"],
             "vertical_mse_5m_mm": m["relative_accuracy"]["vertical"]["mse_at_threshold_mm"],
