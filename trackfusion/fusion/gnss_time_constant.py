@@ -18,18 +18,22 @@ elimination of the whole graph, in the solve's ordering.
 
 **The profile.** At octaves of the configured time constant (from four fix intervals to the
 survey's length), from the configured one outwards until the profile has fallen 1.92 below its
-best on each side (:func:`walk_grid`; the grid's end otherwise), the steps' variance is set to the diffusion the solve had
-(``tau / tau0`` times its stationary variance) times ``g``, searched in steps of 4 from 1 and
-closed by a parabola in ``log g``: the profile likelihood ``l(tau)``. The estimate is the peak
-of the parabola in ``log tau`` through the best node; its 95 % interval spans the nodes whose
-``l`` lies within 1.92 of the peak (unbounded above when the last does: long time constants trade
+best on each side (:func:`walk_grid`; the grid's end otherwise), and at the half octaves on
+either side of the best node (:func:`refine_peak`), the steps' variance is set to the diffusion
+the solve had (``tau / tau0`` times its stationary variance) times ``g``, searched in steps of
+``sqrt 2`` from the best ``g`` of the nearest time constant already taken (from 1 at the first) and closed by
+a parabola in ``log g``: the profile likelihood ``l(tau)``. The estimate is
+the peak of the parabola in ``tau ** -1/2`` (:func:`rate_coordinate`) through the best node and
+its neighbours; its 95 % interval spans the nodes whose ``l`` lies within 1.92 of the peak, its
+ends on the same parabolas (unbounded above when the last node does: long time constants trade
 with the trajectory, which the IMU and odometer do not hold over hundreds of seconds). The
 configured time constant is replaced when its own ``l`` lies more than 1.92 below the peak (the
 likelihood-ratio test at 95 %): a flat, bumpy profile rejects nothing.
 
 The fixes that passed the gate enter at their full weight (the Gaussian model the likelihood is
-of), not the solve's Huber weights. Not modelled: the first error state's prior (3 rows) keeps
-the solve's sigma, and the white noise the solve's estimate.
+of), not the solve's Huber weights, and with the white noise at its estimate
+(fusion/gnss_noise.py), applied by the solve or not (:func:`_as_estimated`). Not modelled: the
+first error state's prior (3 rows) keeps the solve's sigma, and the white noise is not profiled.
 """
 
 from __future__ import annotations
@@ -46,8 +50,10 @@ from .normal_solve import log_abs_determinant
 
 #: half the 95 % quantile of chi-square with one degree of freedom: the likelihood-ratio interval
 HALF_CHI2_95 = 1.92
-#: the step [-] of the diffusion factor ``g`` in its search at each time constant
-DIFFUSION_STEP = 4.0
+#: the step [-] of the diffusion factor ``g`` in its search at each time constant (in steps of 4 the
+#: parabola in ``log g`` lay up to 1.6 above the peak on the pyins car survey, where the profile
+#: in ``g`` falls steeply beyond its peak)
+DIFFUSION_STEP = 2.0 ** 0.5
 
 
 @dataclass(frozen=True)
@@ -89,59 +95,69 @@ def tau_grid(configured_s: float, fix_interval_s: float, duration_s: float) -> n
     return grid[keep]
 
 
-def _parabola(y: np.ndarray, i: int) -> tuple[float, float]:
-    """``(b, c)`` of the parabola ``y[i] + b u + c u^2`` through nodes ``i - 1, i, i + 1`` of an
-    equally spaced grid (``u`` in node steps from node ``i``, an interior node)."""
-    return (y[i + 1] - y[i - 1]) / 2.0, (y[i + 1] + y[i - 1] - 2.0 * y[i]) / 2.0
+def rate_coordinate(tau_s: np.ndarray | float) -> np.ndarray:
+    """``tau ** -1/2`` [s^-1/2]: the coordinate in which the profile is interpolated. The
+    information a series holds on its process's rate ``1 / tau`` grows as ``1 / rate`` (an
+    Ornstein-Uhlenbeck rate's maximum-likelihood variance is ``2 rate / T``), so the square root
+    of the rate carries a constant one and the profile is near a parabola in it; in ``log tau``
+    it is steep towards short and flat towards long time constants (interpolated there between
+    octaves, an exact series' peak came out 25 % long, docs/noise_estimation.md)."""
+    return np.asarray(tau_s, dtype=float) ** -0.5
+
+
+def _parabola(x: np.ndarray, y: np.ndarray, i: int) -> np.ndarray:
+    """``(c, b, a)`` of ``a + b x + c x^2`` through nodes ``i - 1, i, i + 1`` (an interior node)."""
+    return np.polyfit(x[i - 1:i + 2], y[i - 1:i + 2], 2)
 
 
 def _peak(x: np.ndarray, y: np.ndarray, i: int) -> tuple[float, float]:
-    """Peak ``(x, y)`` of the parabola through nodes ``i - 1, i, i + 1`` of equally spaced ``x``
-    (the node itself at an end or where the three do not curve down)."""
+    """Peak ``(x, y)`` of the parabola through nodes ``i - 1, i, i + 1`` of ``x`` (the node itself at
+    an end or where the three do not curve down; within the two neighbours)."""
     if i == 0 or i == x.size - 1:
         return float(x[i]), float(y[i])
-    h = x[i + 1] - x[i]
-    b, c = _parabola(y, i)
+    c, b, a = _parabola(x, y, i)
     if c >= 0.0:
         return float(x[i]), float(y[i])
-    u = float(np.clip(-b / (2.0 * c), -1.0, 1.0))
-    return float(x[i] + u * h), float(y[i] + b * u + c * u * u)
+    u = float(np.clip(-b / (2.0 * c), min(x[i - 1], x[i + 1]), max(x[i - 1], x[i + 1])))
+    return u, float(a + b * u + c * u * u)
 
 
 def _crossing(x: np.ndarray, y: np.ndarray, level: float, j: int, step: int) -> float:
-    """Where ``y`` falls below ``level`` between node ``j`` (at or above it) and ``j + step`` over
-    equally spaced ``x``: on the parabola through ``j - 1 .. j + 1`` where it curves down (a
-    profile this peaked is far from linear between octaves), else linearly; +-inf when ``j`` is
-    the grid's last node that way."""
+    """Where ``y`` falls below ``level`` between node ``j`` (at or above it) and ``j + step``, ``x``
+    the :func:`rate_coordinate` of increasing time constants: on the parabola through ``j - 1 ..
+    j + 1`` where it crosses the level there (a profile this peaked is far from linear between
+    octaves), else linearly; when ``j`` is the last node that way, ``inf`` (a time constant of 0)
+    towards shorter time constants and 0 (an unbounded one) towards longer."""
     if not 0 <= j + step < x.size:
-        return float(np.inf * step)
+        return np.inf if step < 0 else 0.0
+    lo, hi = sorted((float(x[j]), float(x[j + step])))
     if 0 < j < x.size - 1:
-        b, c = _parabola(y, j)
-        disc = b * b - 4.0 * c * (y[j] - level)
-        if c < 0.0 and disc >= 0.0:  # the root of y[j] + b u + c u^2 = level on the side of ``step``
-            u = (-b - step * np.sqrt(disc)) / (2.0 * c)
-            return float(x[j] + u * (x[j + 1] - x[j]))
+        c, b, a = _parabola(x, y, j)
+        roots = np.roots([c, b, a - level]) if c < 0.0 else np.array([])
+        inside = [float(r.real) for r in roots if abs(r.imag) < 1e-12 and lo <= r.real <= hi]
+        if inside:
+            return inside[0]
     return float(x[j] + (x[j + step] - x[j]) * (y[j] - level) / (y[j] - y[j + step]))
 
 
 def interval_from_profile(tau_s: np.ndarray, log_likelihood: np.ndarray, configured_s: float
                           ) -> TimeConstantEstimate:
-    """:class:`TimeConstantEstimate` from the profile ``log_likelihood`` (T,) at the octave grid
-    ``tau_s`` (T,) [s] (module docstring). The interval spans every node within 1.92 of the peak
-    (a profile that dips below that level and comes back is not cut at the dip); the configured
-    time constant is rejected by the likelihood-ratio test of its own node (of the interval when
-    it is not a node)."""
-    x, y = np.log2(tau_s), np.asarray(log_likelihood, dtype=float)
+    """:class:`TimeConstantEstimate` from the profile ``log_likelihood`` (T,) at the time constants
+    ``tau_s`` (T,) [s], increasing (module docstring), interpolated in :func:`rate_coordinate`.
+    The interval spans every node within 1.92 of the peak (a profile that dips below that level
+    and comes back is not cut at the dip); the configured time constant is rejected by the
+    likelihood-ratio test of its own node (of the interval when it is not a node)."""
+    x, y = rate_coordinate(tau_s), np.asarray(log_likelihood, dtype=float)
     i = int(np.argmax(y))
     x_hat, peak = _peak(x, y, i)
     peak = max(peak, float(y[i]))
     level = peak - HALF_CHI2_95
     above = np.flatnonzero(y >= level)
     lo, hi = _crossing(x, y, level, int(above[0]), -1), _crossing(x, y, level, int(above[-1]), +1)
-    interval = (float(2.0 ** lo) if np.isfinite(lo) else 0.0, float(2.0 ** hi) if np.isfinite(hi) else np.inf)
+    interval = (float(lo ** -2.0) if np.isfinite(lo) else 0.0, float(hi ** -2.0) if hi > 0.0 else np.inf)
     node = np.flatnonzero(np.isclose(tau_s, configured_s, rtol=1e-9))
     applies = bool(y[node[0]] < level) if node.size else not interval[0] <= configured_s <= interval[1]
-    return TimeConstantEstimate(float(configured_s), float(2.0 ** x_hat), interval, applies,
+    return TimeConstantEstimate(float(configured_s), float(x_hat ** -2.0), interval, applies,
                                 [float(t) for t in tau_s], [float(v - peak) for v in y])
 
 
@@ -185,15 +201,15 @@ def log_likelihood(fixed: gtsam.GaussianFactorGraph, steps: fx.LinearBlocks, e: 
 
 def estimate(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
              builders: Sequence[tuple[str, Callable]], state, configured_s: float, fix_t_s: np.ndarray,
-             say: Callable[[str], None] = lambda _m: None) -> TimeConstantEstimate | None:
+             say: Callable[[str], None] = lambda _m: None, white_ratio: np.ndarray | None = None
+             ) -> TimeConstantEstimate | None:
     """The time constant of the GNSS correlated error from the solve at ``values`` (``state``
     its arrays, with ``e`` the used fixes' error states), ``graph`` and ``builders`` its factors
     (fusion/smoother.py ``_Graph``); ``configured_s`` [s] the solve's time constant, ``fix_t_s``
-    (N,) [s] the used fixes' times. None without a correlated-error model or with fewer than 30
-    fixes."""
-    # the gated fixes at their full weight: the likelihood is the Gaussian model's (with the
-    # solve's Huber weights the estimate at a true 30 s was 43 s, 34-56 s; without, 36 s, 27-48 s)
-    blocks = [(name, replace(build(state), huber_k=None) if name == "gnss" else build(state))
+    (N,) [s] the used fixes' times; ``white_ratio`` (3,) [-]: the fixes' white variance estimated
+    over the one the solve used, per ENU axis (fusion/gnss_noise.py; None: 1). None without a
+    correlated-error model or with fewer than 30 fixes."""
+    blocks = [(name, _as_estimated(build(state), white_ratio) if name == "gnss" else build(state))
               for name, build in builders]
     steps = dict(blocks).get("gnss_error")
     if steps is None or fix_t_s.size < 30:
@@ -205,14 +221,57 @@ def estimate(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     fx.to_jacobian_factors(steps, with_steps)
     ordering = gtsam.Ordering.ColamdGaussianFactorGraph(with_steps)
 
-    def profile(tau: float) -> float:
-        return profile_over_diffusion(lambda g: log_likelihood(fixed, steps, state.e, ordering, configured_s / tau, g))
+    best_log2_g: dict[float, float] = {}  # the diffusion factor's best node at each time constant taken
+
+    def profile(tau_and_start: tuple[float, float]) -> tuple[float, float]:
+        tau, start = tau_and_start
+        return profile_over_diffusion(lambda g: log_likelihood(fixed, steps, state.e, ordering, configured_s / tau, g),
+                                      start)
 
     def profiles(taus: list[float]) -> list[float]:  # the walk's nodes on both sides at once, on two CPUs
         say(f"  GNSS time constant: likelihood at {' and '.join(f'{t:.0f}' for t in taus)} s")
-        return fork_map("the GNSS time constant's likelihood", profile, taus)
+        starts = [_nearest(best_log2_g, tau) for tau in taus]
+        out = fork_map("the GNSS time constant's likelihood", profile, list(zip(taus, starts)))
+        best_log2_g.update(zip(taus, (g for _, g in out)))
+        return [v for v, _ in out]
     lo, hi, values_at = walk_grid(profiles, grid, int(np.argmin(np.abs(np.log(grid / configured_s)))))
-    return interval_from_profile(grid[lo:hi + 1], np.array(values_at), configured_s)
+    tau, values = refine_peak(profiles, grid[lo:hi + 1], values_at)
+    return interval_from_profile(tau, values, configured_s)
+
+
+def _as_estimated(fixes: fx.LinearBlocks, white_ratio: np.ndarray | None) -> fx.LinearBlocks:
+    """The fixes' factors as the likelihood takes them: at their full weight (the Gaussian model's;
+    with the solve's Huber weights the estimate at a true 30 s was 43 s, 34-56 s, against 36 s,
+    27-48 s), and with the white noise at its estimate, applied by the solve or not (a variance
+    left 4-7 % low, not significant at two sigmas, went into the error states at the shortest time
+    constant and rejected the pyins car survey's true 600 s)."""
+    if white_ratio is None:
+        return replace(fixes, huber_k=None)
+    root = np.sqrt(np.asarray(white_ratio, dtype=float))
+    if fixes.whiten is None:
+        return replace(fixes, huber_k=None, sigma=fixes.sigma * root)
+    return replace(fixes, huber_k=None, whiten=fixes.whiten / root)  # W D^-1: the covariance D C D
+
+
+def _nearest(best_log2_g: dict[float, float], tau_s: float) -> float:
+    """The search's start at ``tau_s`` [s]: the best ``log2 g`` of the nearest time constant taken
+    (0, the solve's diffusion, at the first)."""
+    if not best_log2_g:
+        return 0.0
+    return best_log2_g[min(best_log2_g, key=lambda t: abs(np.log(t / tau_s)))]
+
+
+def refine_peak(f: Callable[[list[float]], list[float]], tau_s: np.ndarray, values: Sequence[float]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The profile ``values`` at the octave nodes ``tau_s`` (T,) [s] with the half octaves on either
+    side of its best node added (``f``, as in :func:`walk_grid`, gives them at once): the peak
+    and, on a profile this narrow, the interval's ends then lie between nodes half an octave
+    apart. Returns the nodes (increasing) and the profile at them."""
+    i = int(np.argmax(values))
+    mids = [float(np.sqrt(tau_s[k] * tau_s[k + 1])) for k in (i - 1, i) if 0 <= k < tau_s.size - 1]
+    tau = np.concatenate([tau_s, mids])
+    order = np.argsort(tau)
+    return tau[order], np.concatenate([np.asarray(values, dtype=float), f(mids) if mids else []])[order]
 
 
 def walk_grid(f: Callable[[list[float]], list[float]], grid: np.ndarray, start: int) -> tuple[int, int, list[float]]:
@@ -233,21 +292,22 @@ def walk_grid(f: Callable[[list[float]], list[float]], grid: np.ndarray, start: 
         lo, hi = min(lo, nodes[0]), max(hi, nodes[-1])
 
 
-def profile_over_diffusion(ll: Callable[[float], float], max_steps: int = 6) -> float:
-    """The largest ``ll(g)`` over the diffusion factor ``g`` [-]: from 1 (the solve's diffusion)
-    in steps of :data:`DIFFUSION_STEP` uphill until it falls (at most ``max_steps``), then the
-    parabola in ``log g`` through the best and its two neighbours."""
+def profile_over_diffusion(ll: Callable[[float], float], start_log2_g: float = 0.0, max_steps: int = 24
+                           ) -> tuple[float, float]:
+    """The largest ``ll(g)`` over the diffusion factor ``g`` [-] and the ``log2 g`` of the best node
+    searched: from ``2 ** start_log2_g`` in steps of :data:`DIFFUSION_STEP` uphill until it falls (at
+    most ``max_steps``), then the parabola in ``log g`` through the best and its two neighbours."""
     h = float(np.log2(DIFFUSION_STEP))
-    x = {0.0: ll(1.0), h: ll(DIFFUSION_STEP)}  # keyed by log2 g
-    step = h if x[h] > x[0.0] else -h
-    at = h if step > 0 else 0.0
+    at_log2 = lambda k: start_log2_g + k * h  # noqa: E731  (nodes keyed by their step index k)
+    x = {k: ll(2.0 ** at_log2(k)) for k in (0, 1)}
+    step = 1 if x[1] > x[0] else -1
+    at = max(step, 0)
     for _ in range(max_steps):
-        nxt = at + step
-        x[nxt] = ll(2.0**nxt)
-        if x[nxt] <= x[at]:
+        x[at + step] = ll(2.0 ** at_log2(at + step))
+        if x[at + step] <= x[at]:
             break
-        at = nxt
-    if at + step not in x or at - step not in x:  # the best at the end of the steps taken
-        return float(x[at])
-    nodes = np.array([at - h, at, at + h])
-    return max(_peak(nodes, np.array([x[n] for n in nodes]), 1)[1], float(x[at]))
+        at += step
+    if at + 1 not in x or at - 1 not in x:  # the best at the end of the steps taken
+        return float(x[at]), at_log2(at)
+    nodes = np.array([at - 1, at, at + 1], dtype=float)
+    return max(_peak(nodes, np.array([x[n] for n in (at - 1, at, at + 1)]), 1)[1], float(x[at])), at_log2(at)

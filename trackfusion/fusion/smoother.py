@@ -1021,10 +1021,20 @@ def _time_constant(problem: FusionProblem, rounds: _Rounds, gates: "_Gates",
     if not (st.enabled and st.estimate_time_constant) or gates.gnss is None or not gates.used.size:
         return None
     est = gtc.estimate(rounds.G.graph, rounds.sol.values, rounds.G.builders, rounds.sol.state,
-                       st.correlation_time_s, problem.gnss.t_s[gates.used], say)
+                       st.correlation_time_s, problem.gnss.t_s[gates.used], say, _white_ratio(gates))
     if est is not None:
         say(est.summary())
     return est
+
+
+def _white_ratio(gates: "_Gates") -> np.ndarray | None:
+    """The GNSS white variance factors estimated over those the last solve used, per ENU axis (3,)
+    [-]; None without an estimate."""
+    if gates.noise is None:
+        return None
+    used = gates.solved_factor if gates.solved_factor is not None else gates.white_factor
+    ratio = np.asarray(gates.noise.factor, dtype=float) / np.asarray(used, dtype=float)
+    return ratio[[0, 0, 1]]
 
 
 def _solved_again(problem: FusionProblem, time_constant: "gtc.TimeConstantEstimate",
