@@ -192,6 +192,18 @@ def test_the_half_octaves_beside_the_best_node_are_added():
     np.testing.assert_allclose(tau, [10.0, 200.0**0.5, 20.0])
 
 
+def test_the_report_shows_the_estimate_and_its_profile():
+    """The report's part: the estimate, its interval (unbounded above: said so), the verdict, and
+    the profile a surveyor judges it by, each node's distance below the peak."""
+    from trackfusion.report.html import _time_constant_part
+    est = gtc.TimeConstantEstimate(300.0, 410.96, (0.0, np.inf), False, [4.6875, 300.0, 600.0], [-0.33, -0.0, -0.01])
+    html = _time_constant_part(est.to_json())
+    for text in ("411 s", "0 s to unbounded", "<td>no</td>", "4.7 s", "<td>0.33</td>", "<td>0.00</td>", "1.92"):
+        assert text in html, text
+    assert "-0.00" not in html
+    assert _time_constant_part(None) == ""
+
+
 @pytest.fixture(scope="module")
 def short_surveys(tmp_path_factory):
     """The short open-track survey with the correlated error's time constant drawn at 10 and at

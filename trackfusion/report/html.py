@@ -535,10 +535,15 @@ def _time_constant_part(tc: dict | None) -> str:
     if not tc:
         return ""
     lo, hi = tc["interval_95_s"]
+    profile = [{"time constant": f"{t:.1f} s", "log-likelihood below the peak": f"{abs(v):.2f}"}
+               for t, v in zip(tc.get("profile_tau_s", []), tc.get("profile_log_likelihood", []))]
     return ("<h3>GNSS correlated error: time constant</h3>"
             + _kv([("configured", f"{tc['configured_s']:g} s"), ("estimated", f"{tc['estimate_s']:.0f} s"),
                    ("95 % interval", f"{lo:.0f} s to " + (f"{hi:.0f} s" if hi is not None else "unbounded")),
-                   ("applied", "yes: the survey solved again with it" if tc["applied"] else "no")]))
+                   ("applied", "yes: the survey solved again with it" if tc["applied"] else "no")])
+            + ("<p class='note'>The survey's likelihood at each time constant tried; the 95 % interval spans "
+               "those less than 1.92 below the peak, and the configured one is replaced only when it lies "
+               "further below (a flat profile resolves nothing).</p>" + _table(profile) if profile else ""))
 
 
 def rejected_section(m: dict) -> str:
