@@ -117,7 +117,7 @@ class GnssFactorSettings(_Factor):
     ``estimate_time_constant``: the correlated part's time constant estimated by the survey's
     marginal likelihood after the solve, and the survey solved again with it when the
     likelihood-ratio test (95 %) rejects ``correlation_time_s`` (fusion/gnss_time_constant.py; off by
-    default: it costs about 20 eliminations of the whole graph, and a second solve when applied).
+    default: it costs 17-33 eliminations of the whole graph, and a second solve when applied).
     """
 
     covariance_scale: float = Field(1.0, gt=0)
