@@ -66,7 +66,9 @@ def _run_cli(survey_dir, tmp_path, smoother, capsys):
     return code, err, out
 
 
-def test_unreachable_scheduler_exits_2_with_one_line(survey_dir, tmp_path, capsys):
+def test_unreachable_scheduler_exits_2_with_one_line(survey_dir, tmp_path, capsys, monkeypatch):
+    import trackfusion.parallel
+    monkeypatch.setattr(trackfusion.parallel, "SCHEDULER_TIMEOUT_S", 2.0)  # the run's 30 s, shortened
     code, err, out = _run_cli(survey_dir, tmp_path, {"part_s": 75.0, "engine": "dask",
                                                       "address": "tcp://127.0.0.1:9"}, capsys)
     assert code == 2

@@ -155,6 +155,8 @@ def _died(group: list[int], proc) -> PartWorkerDied:
 #: how often [s] a wait for a child's answer returns to Python, so that a Ctrl-C (SIGINT) the
 #: kernel delivered to another thread of this process (GTSAM's, a library's) is acted on at once
 POLL_S = 0.1
+#: how long [s] a Dask client tries to reach ``smoother.address`` before the run ends with exit 2
+SCHEDULER_TIMEOUT_S = 30.0
 
 
 def _receive(group: list[int], proc, conn) -> Any:
@@ -195,7 +197,7 @@ def open_dask_client(address: str | None, workers: int, engine_key: str, address
         if address is None:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
             return Client(cluster), cluster
-        return Client(address, timeout=30), None
+        return Client(address, timeout=SCHEDULER_TIMEOUT_S), None
     except (OSError, TimeoutError) as exc:
         if cluster is not None:
             cluster.close()
