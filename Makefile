@@ -16,7 +16,7 @@ demo: venv
 	$(BIN)/trackfusion demo
 
 test: venv
-	$(BIN)/python -m pytest -q -n 2 tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests
 
 bench: venv
 	$(BIN)/python benchmarks/simulate.py
