@@ -69,7 +69,8 @@ def test_dask_address_reaches_a_running_scheduler(surveys, tmp_path, capsys):
     test starts: the batch only gets its tcp:// address)."""
     from dask.distributed import LocalCluster
     _clean(surveys)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      scheduler_kwargs={"dashboard": False}) as cluster:
         code = main(["batch", surveys[0], surveys[2], "--engine", "dask", "--address", cluster.scheduler_address,
                      "--json", str(tmp_path / "a.json")])
     assert code == EXIT_SOME_FAILED

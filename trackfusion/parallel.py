@@ -195,7 +195,8 @@ def open_dask_client(address: str | None, workers: int, engine_key: str, address
     cluster = None
     try:
         if address is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                   scheduler_kwargs={"dashboard": False})  # its HTTP server on a free port
             return Client(cluster), cluster
         return Client(address, timeout=SCHEDULER_TIMEOUT_S), None
     except (OSError, TimeoutError) as exc:
