@@ -53,10 +53,15 @@ FACTOR_TOLERANCE = 0.1
 _DOF = np.array([2, 1])
 
 
+def per_enu_axis(factor: np.ndarray) -> np.ndarray:
+    """(3,) the (horizontal, vertical) variance factors (2,) per ENU axis."""
+    return np.asarray(factor, dtype=float)[[0, 0, 1]]
+
+
 def scaled_white(white_cov: np.ndarray, factor: np.ndarray) -> np.ndarray:
     """``D C D`` (F,3,3) [m^2] of stated white covariances (F,3,3) and the factors (2,)
     (horizontal, vertical)."""
-    d = np.sqrt(np.array([factor[0], factor[0], factor[1]]))
+    d = np.sqrt(per_enu_axis(factor))
     return white_cov * d[:, None] * d[None, :]
 
 
@@ -125,7 +130,7 @@ class GnssNoiseEstimate:
     @property
     def estimated_white_sigma_mm(self) -> np.ndarray:
         """(3,) the stated white sigma per ENU axis times the estimated sigma scale [mm]."""
-        return self.stated_white_sigma_mm * np.sqrt(self.factor[[0, 0, 1]])
+        return self.stated_white_sigma_mm * np.sqrt(per_enu_axis(self.factor))
 
     def to_json(self) -> dict:
         scale = np.sqrt(self.factor)

@@ -209,11 +209,11 @@ def estimate(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     (N,) [s] the used fixes' times; ``white_ratio`` (3,) [-]: the fixes' white variance estimated
     over the one the solve used, per ENU axis (fusion/gnss_noise.py; None: 1). None without a
     correlated-error model or with fewer than 30 fixes."""
+    if fix_t_s.size < 30 or "gnss_error" not in dict(builders):
+        return None
     blocks = [(name, _as_estimated(build(state), white_ratio) if name == "gnss" else build(state))
               for name, build in builders]
-    steps = dict(blocks).get("gnss_error")
-    if steps is None or fix_t_s.size < 30:
-        return None
+    steps = dict(blocks)["gnss_error"]
     grid = tau_grid(configured_s, float(np.median(np.diff(fix_t_s))), float(fix_t_s[-1] - fix_t_s[0]))
     fixed = fixed_part(graph, values, blocks)
     with_steps = gtsam.GaussianFactorGraph()
@@ -247,10 +247,8 @@ def _as_estimated(fixes: fx.LinearBlocks, white_ratio: np.ndarray | None) -> fx.
     constant and rejected the pyins car survey's true 600 s)."""
     if white_ratio is None:
         return replace(fixes, huber_k=None)
-    root = np.sqrt(np.asarray(white_ratio, dtype=float))
-    if fixes.whiten is None:
-        return replace(fixes, huber_k=None, sigma=fixes.sigma * root)
-    return replace(fixes, huber_k=None, whiten=fixes.whiten / root)  # W D^-1: the covariance D C D
+    # the fixes carry their whitening W (fusion/smoother.py ``gnss``); W D^-1 whitens D C D
+    return replace(fixes, huber_k=None, whiten=fixes.whiten / np.sqrt(np.asarray(white_ratio, dtype=float)))
 
 
 def _nearest(best_log2_g: dict[float, float], tau_s: float) -> float:

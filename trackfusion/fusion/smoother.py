@@ -1032,9 +1032,7 @@ def _white_ratio(gates: "_Gates") -> np.ndarray | None:
     [-]; None without an estimate."""
     if gates.noise is None:
         return None
-    used = gates.solved_factor if gates.solved_factor is not None else gates.white_factor
-    ratio = np.asarray(gates.noise.factor, dtype=float) / np.asarray(used, dtype=float)
-    return ratio[[0, 0, 1]]
+    return gnss_noise.per_enu_axis(gates.noise.factor) / gnss_noise.per_enu_axis(gates.solved_factor)
 
 
 def _solved_again(problem: FusionProblem, time_constant: "gtc.TimeConstantEstimate",
