@@ -48,6 +48,11 @@ DEG = np.pi / 180.0
 #: sigma of the hand-over priors of a chunk (fusion/chunks.py) relative to the previous chunk's
 #: marginal sigma: holds the seam continuous
 JOIN_TIGHT = 1e-3
+#: the most keyframes whose noise estimate is forked beside the converging step
+#: (:func:`_estimate_while_converging`): the child copies the last Bayes tree while this process
+#: and its sigma-part workers take the step. 2 h at 500 Hz (34 401 keyframes): 4.7 GB for the
+#: process tree, against 3.5 GB in turn (docs/long_runs.md); the same numbers either way
+ESTIMATE_BESIDE_STEP_MAX_KEYFRAMES = 25_000
 #: how far back [s] a chunk hands its keyframes over as the front wheel points of the next
 #: chunk's first wheel-path pairs: a wheelbase at 0.05 m/s and more
 WHEEL_FRONT_S = 60.0
@@ -1313,7 +1318,8 @@ def _solve_in_rounds(problem: FusionProblem, b: _Builder, values: gtsam.Values, 
         # the groups' noise from the same solve as the GNSS white noise's (one round for both,
         # as Helmert's estimate takes every component at once); not while readings were rejected
         if components is not None and not components.fixed and not rejected:
-            if reweighted and not refit and partition is None and can_fork():
+            if reweighted and not refit and partition is None and can_fork() \
+                    and b.t.size <= ESTIMATE_BESIDE_STEP_MAX_KEYFRAMES:
                 more, settled = _estimate_while_converging(components, G, sol, gates.labels(), converge, say)
             else:
                 more = _estimate_components(components, G, sol, gates.labels())
