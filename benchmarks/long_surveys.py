@@ -1,11 +1,12 @@
 """Benchmark: the accuracy of long surveys, smoothed in chunks, against a 1 h survey.
 
-Usage: python benchmarks/long_surveys.py [--seeds 1 2 3] [--passes 4 8 41] [--out FILE] [--append] [--one-batch]
+Usage: python benchmarks/long_surveys.py [--seeds 1 2 3] [--passes 4 8 41] [--out FILE] [--append]
+                                        [--one-batch | --hour-chunks]
        python benchmarks/long_surveys.py --summary   (the summary of the runs in --out again)
 The ``open-track-gnss`` scenario (1 km of track driven back and forth at 3 m/s, 200 Hz
 navigation-grade IMU, odometer, 1 Hz RTK, the wheel-path factor; 14.7 min a round trip) made
-longer with ``motion.passes``: 4 round trips (59 min: one batch), 8 (1 h 58 min: two chunks of
-the default ``smoother.chunk_s`` 3600 s) and 41 (10 h 2 min: eleven chunks). Each survey is run
+longer with ``motion.passes``: 4 round trips (57 min) and 8 (1 h 55 min), one batch with the
+default ``smoother.chunk_s: auto``, and 41 (9 h 48 min: ten chunks of an hour). Each survey is run
 with its generated pipeline (the defaults) in a fresh process: its 5 m vertical / lateral MSE
 and ADEV (the run's own evaluation against truth.csv), its wall time and peak memory (VmHWM),
 and, for the chunked runs, the RMS of the 5 m error differences (error 5 m of travel further
@@ -16,8 +17,9 @@ Simulations are cached under ``$TMPDIR/trackfusion-bench``. Writes
 benchmarks/results/long_surveys.json; with ``--append`` the runs are added to those already in
 the file (a run of the same seed, passes and kind replaced) and the summary is made over all of
 them (e.g. the 10 h survey of one seed after the 1 h and 2 h ones of three); with ``--one-batch``
-the surveys are run as one batch (``smoother.chunk_s: null``: what the chunks give away; the
-figures at the default joins' times as well).
+the surveys are run as one batch (``smoother.chunk_s: null``), with ``--hour-chunks`` in chunks of
+an hour (``smoother.chunk_s: 3600``, the default before ``auto``: what the chunks give away). A run
+in one batch gets the figures at the joins chunks of an hour would have, for comparison.
 """
 
 from __future__ import annotations
@@ -59,21 +61,25 @@ def simulated(seed: int, passes: int) -> Path:
     return out
 
 
-def run_survey(sim: Path, one_batch: bool = False) -> dict:
+#: the runs besides the default: their ``smoother.chunk_s`` and output folder
+KINDS = {"one batch": (None, "out-long-batch"), "chunks of an hour": (3600.0, "out-long-hour-chunks")}
+
+
+def run_survey(sim: Path, kind: str = "default") -> dict:
     """``trackfusion run`` of ``sim``'s pipeline.yaml in a fresh process (its figures as JSON);
-    ``one_batch``: with ``smoother.chunk_s: null`` (output in ``out-long-batch``)."""
+    another ``kind`` (:data:`KINDS`): with its ``smoother.chunk_s``."""
     import yaml
     pipeline = sim / "pipeline.yaml"
-    if one_batch:
+    if kind != "default":
         data = yaml.safe_load(pipeline.read_text())
-        data.setdefault("smoother", {})["chunk_s"] = None
-        pipeline = sim / "pipeline-one-batch.yaml"
+        data.setdefault("smoother", {})["chunk_s"] = KINDS[kind][0]
+        pipeline = sim / f"pipeline-{_out_dir(kind)}.yaml"
         pipeline.write_text(yaml.safe_dump(data))
-    return child(_CHILD, str(pipeline), str(sim / _out_dir(one_batch)))
+    return child(_CHILD, str(pipeline), str(sim / _out_dir(kind)))
 
 
-def _out_dir(one_batch: bool) -> str:
-    return "out-long-batch" if one_batch else "out-long"
+def _out_dir(kind: str) -> str:
+    return KINDS[kind][1] if kind in KINDS else "out-long"
 
 
 def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-long") -> dict:
@@ -91,18 +97,23 @@ def join_figures(sim: Path, chunk_s: float, overlap_s: float, out: str = "out-lo
 
 
 def with_joins(row: dict, sim: Path) -> None:
-    """Add to a run's ``row`` the figures (:func:`join_figures`) at the joins of the survey's
-    default chunks (its pipeline.yaml's ``smoother``), when it has any (a one-batch run's at the
-    same times, for comparison)."""
+    """Add to a run's ``row`` the figures (:func:`join_figures`) at its chunks' joins, or, for a run
+    in one batch, at the joins chunks of an hour would have (for comparison), when there are any."""
     import yaml
     from trackfusion.fusion.settings import SmootherSettings
-    cfg = SmootherSettings(**yaml.safe_load((sim / "pipeline.yaml").read_text()).get("smoother", {}))
-    if cfg.chunk_s is not None and row["duration_s"] > cfg.chunk_s + cfg.chunk_overlap_s:
-        row["joins"] = join_figures(sim, cfg.chunk_s, cfg.chunk_overlap_s, _out_dir(row["run"] == "one batch"))
+    written = yaml.safe_load((sim / "pipeline.yaml").read_text())
+    spacing_s, smoother, kind = written["keyframes"]["spacing_s"], written.get("smoother", {}), row["run"]
+    cfg = SmootherSettings(**{**smoother, **({"chunk_s": KINDS[kind][0]} if kind in KINDS else {})})
+    limit_s = cfg.one_batch_up_to_s(spacing_s)
+    if limit_s is None or row["duration_s"] <= limit_s:
+        cfg = SmootherSettings(**{**smoother, "chunk_s": KINDS["chunks of an hour"][0]})
+        limit_s = cfg.one_batch_up_to_s(spacing_s)
+    if row["duration_s"] > limit_s:
+        row["joins"] = join_figures(sim, cfg.chunk_length_s, cfg.chunk_overlap_s, _out_dir(kind))
 
 
 def _label(row: dict) -> str:
-    return str(row["passes"]) + (", one batch" if row["run"] == "one batch" else "")
+    return str(row["passes"]) + ("" if row["run"] == "default" else f", {row['run']}")
 
 
 def main() -> None:
@@ -112,15 +123,17 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--append", action="store_true", help="add the runs to those in --out")
     ap.add_argument("--one-batch", action="store_true", help="the surveys as one batch (smoother.chunk_s: null)")
+    ap.add_argument("--hour-chunks", action="store_true",
+                    help="the surveys in chunks of an hour (smoother.chunk_s: 3600, the default before auto)")
     ap.add_argument("--summary", action="store_true", help="no new run: the summary of those in --out again")
     args = ap.parse_args()
     rows = []
-    run = "one batch" if args.one_batch else "default"
+    run = "one batch" if args.one_batch else "chunks of an hour" if args.hour_chunks else "default"
     args.append |= args.summary
     for seed in [] if args.summary else args.seeds:
         for passes in args.passes:
             sim = simulated(seed, passes)
-            row = {"seed": seed, "passes": passes, "run": run, **run_survey(sim, args.one_batch)}
+            row = {"seed": seed, "passes": passes, "run": run, **run_survey(sim, run)}
             with_joins(row, sim)
             rows.append(row)
             print(json.dumps(row), flush=True)
@@ -130,7 +143,7 @@ def main() -> None:
                 if (r["seed"], r["passes"], r["run"]) not in new]
         for r in kept:  # their join figures again, as this script computes them now (when their output is still there)
             sim = simulated(r["seed"], r["passes"])
-            if (sim / _out_dir(r["run"] == "one batch") / "trajectory.csv").is_file():
+            if (sim / _out_dir(r["run"]) / "trajectory.csv").is_file():
                 with_joins(r, sim)
         rows = sorted(kept + rows, key=lambda r: (r["passes"], r["run"] != "default", r["seed"]))
     summary = {}

@@ -1,6 +1,6 @@
 """Benchmark: one hour of 500 Hz IMU data with odometer and GNSS through ``trackfusion run``.
 
-Usage: python benchmarks/speed.py [--passes N] [--runs N]
+Usage: python benchmarks/speed.py [--passes N] [--runs N] [--results FILE] [--chunk-s S]
 Simulates ``open-track-gnss`` at 500 Hz with more passes (about an hour; cached under
 ``$TMPDIR/trackfusion-bench``), then runs the pipeline in fresh processes: ``--runs`` timed runs
 (wall time of the whole process, to its exit; CPU seconds, the run's and its forked workers';
@@ -9,7 +9,9 @@ several per cent within minutes), then one run sampled for the peak memory of th
 forked children together (PSS). The timed runs are not sampled: reading ``smaps_rollup`` of the
 2 GB process tree costs about 25 ms of CPU a sample, an eighth of a core at five samples a second,
 which a run keeping both cores busy pays in wall time. Prints where the time goes (the
-``timings_s`` of the median run's metrics.json) and writes benchmarks/results/speed.json.
+``timings_s`` of the median run's metrics.json) and writes benchmarks/results/speed.json (or
+``--results``: ``--passes 8 --results benchmarks/results/speed_2h.json`` is the 1 h 55 min survey,
+one batch by default).
 Targets (speed of an hour at 200 Hz): under 60 s on 2 cores (>= 30 000 IMU samples/s) and under 4 GB.
 """
 
@@ -73,14 +75,14 @@ CHILD = ("import sys\nfrom trackfusion.cli import exit_now, main\ncode = main(sy
          "exit_now(code)")
 
 
-def _run(sim: Path, out: Path, sampled: bool) -> dict:
-    """One ``trackfusion run`` of ``sim`` into ``out`` in a fresh process: its wall time [s] to its
+def _run(pipeline: Path, out: Path, sampled: bool) -> dict:
+    """One ``trackfusion run`` of ``pipeline`` into ``out`` in a fresh process: its wall time [s] to its
     exit, CPU seconds (with its forked workers), VmHWM [MB], metrics.json and, when ``sampled``,
     the peak PSS of its process tree [MB] (:func:`_peak_tree_pss_mb`)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with tempfile.TemporaryFile("w+") as stdout, tempfile.TemporaryFile("w+") as stderr:
         tic = time.perf_counter()
-        proc = subprocess.Popen([sys.executable, "-c", CHILD, "run", str(sim / "pipeline.yaml"), "--out", str(out)],
+        proc = subprocess.Popen([sys.executable, "-c", CHILD, "run", str(pipeline), "--out", str(out)],
                                 stdout=stdout, stderr=stderr, text=True)
         tree_pss_mb = _peak_tree_pss_mb(proc) if sampled else None
         code = proc.wait()
@@ -96,17 +98,31 @@ def _run(sim: Path, out: Path, sampled: bool) -> dict:
             "metrics": json.loads((out / "metrics.json").read_text())}
 
 
+def _with_chunk(sim: Path, chunk_s: str) -> Path:
+    """A copy of ``sim``'s pipeline.yaml beside it with ``smoother.chunk_s`` set (``chunk_s``: seconds,
+    ``auto`` or ``null``)."""
+    import yaml
+    data = yaml.safe_load((sim / "pipeline.yaml").read_text())
+    data.setdefault("smoother", {})["chunk_s"] = yaml.safe_load(chunk_s)
+    path = sim / f"pipeline-chunk-{chunk_s}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--passes", type=int, default=4, help="round trips (4: about 57 min)")
     ap.add_argument("--runs", type=int, default=5, help="timed runs, whose median is the figure (default 5)")
     ap.add_argument("--out", type=Path, help="output folder (default: out-speed beside the simulation)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help=f"JSON result file (default {RESULTS.name})")
+    ap.add_argument("--chunk-s", help="smoother.chunk_s for the run (seconds, auto or null; default: the pipeline's)")
     args = ap.parse_args()
     sim = simulated(args.passes)
+    pipeline = sim / "pipeline.yaml" if args.chunk_s is None else _with_chunk(sim, args.chunk_s)
     out = args.out or sim / "out-speed"
-    runs = sorted((_run(sim, out, sampled=False) for _ in range(max(1, args.runs))), key=lambda r: r["wall_s"])
+    runs = sorted((_run(pipeline, out, sampled=False) for _ in range(max(1, args.runs))), key=lambda r: r["wall_s"])
     median = runs[len(runs) // 2]
-    tree_pss_mb = _run(sim, out, sampled=True)["tree_pss_mb"]
+    tree_pss_mb = _run(pipeline, out, sampled=True)["tree_pss_mb"]
     metrics = median["metrics"]
     samples = metrics["imu_samples"]
     wall = median["wall_s"]
@@ -118,20 +134,22 @@ def main() -> None:
         "samples_per_s": samples / wall, "wall_s_runs": [r["wall_s"] for r in runs],
         "samples_per_s_best": samples / runs[0]["wall_s"], "cpu_s": median["cpu_s"],
         "peak_rss_mb": max(r["peak_rss_mb"] for r in runs), "peak_tree_pss_mb": tree_pss_mb,
-        "timings_s": metrics["timings_s"],
+        "timings_s": metrics["timings_s"], "chunk_s": args.chunk_s or "the pipeline's",
+        "relative_accuracy_5m_mm": {c: {k: metrics["relative_accuracy"][c][f"{k}_at_threshold_mm"] for k in ("mse", "adev")}
+                                    for c in ("vertical", "lateral")},
         "segments": metrics.get("segments", {}).get("count", 1),
         "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
         "targets": {"wall_s": 60.0, "samples_per_s": 30000, "peak_rss_mb": 4096},
     }
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    args.results.parent.mkdir(exist_ok=True)
+    args.results.write_text(json.dumps(result, indent=2) + "\n")
     print(f"{samples} IMU samples ({result['duration_min']:.1f} min at 500 Hz), {metrics['keyframes']} keyframes")
     print(f"wall {wall:.1f} s, the median of {len(runs)} runs ({runs[0]['wall_s']:.1f}-{runs[-1]['wall_s']:.1f} s; "
           f"target < 60 s), {samples / wall:.0f} samples/s (target >= 30000), CPU {median['cpu_s']:.1f} s (all "
           f"processes), peak memory {result['peak_rss_mb']:.0f} MB (target < 4096 MB); with its worker processes "
           f"{tree_pss_mb:.0f} MB (PSS)")
     print("where the time goes: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in metrics["timings_s"].items()))
-    print(f"wrote {RESULTS}")
+    print(f"wrote {args.results}")
 
 
 if __name__ == "__main__":

@@ -36,6 +36,9 @@ def _case(path, value):
     (_case(["inputs", "log"], "missing.mcap"), "inputs.log"),
     (_case(["factors", "total_stations"], True), "sensors.total_stations"),
     (_case(["factors", "gnss"], True), "sensors.gnss"),
+    (_case(["smoother", "chunk_s"], 30), "smoother.chunk_s"),
+    (_case(["smoother", "chunk_s"], "long"), "smoother.chunk_s"),
+    (_case(["smoother", "overlap_s"], 3600), "smoother"),  # auto's hour
 ])
 def test_bad_config_exit_2_names_field_and_writes_nothing(tmp_path, capsys, data, field):
     (tmp_path / "log.mcap").write_bytes(b"")

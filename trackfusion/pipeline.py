@@ -755,10 +755,11 @@ class _Smoothed:
 
 
 def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float) -> bool:
-    """Whether the run is smoothed in chunks (``smoother.chunk_s``, longer runs than a chunk and
-    its overlap); a total-station run too long for one batch is refused."""
-    sm = pipeline.config.smoother
-    chunked = sm.chunk_s is not None and duration_s > sm.chunk_s + sm.chunk_overlap_s
+    """Whether the run is smoothed in chunks (``smoother.chunk_s``: longer than
+    ``SmootherSettings.one_batch_up_to_s``); a total-station run too long for one batch is refused."""
+    cfg = pipeline.config
+    limit_s = cfg.smoother.one_batch_up_to_s(cfg.keyframes.spacing_s)
+    chunked = limit_s is not None and duration_s > limit_s
     if chunked and problem.prisms is not None:  # station correction states are not handed over between chunks
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
@@ -852,7 +853,8 @@ def _smooth_streamed(problem: FusionProblem, every: int, imu_rate_hz: float, sin
         release_free_memory()  # the chunk's graph and temporaries
 
     say("writing the trajectory at the output rate as each chunk is done")
-    res, _ = smooth_in_chunks(problem, cfg.smoother.chunk_s, cfg.smoother.chunk_overlap_s, every, say, on_dense=on_dense)
+    sm = cfg.smoother
+    res, _ = smooth_in_chunks(problem, sm.chunk_length_s, sm.chunk_overlap_s, every, say, on_dense=on_dense)
     return res, stream
 
 

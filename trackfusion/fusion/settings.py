@@ -12,7 +12,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from ..registration.timesync import TimeSyncSettings
 from ..strict import StrictModel
@@ -225,6 +225,16 @@ class StaticSettings(StrictModel):
 #: what came after); with 600 s it is the batch's (docs/long_runs.md)
 CHUNK_OVERLAP_S = 600.0
 
+#: ``smoother.chunk_s: auto`` (the default): the chunk [s] of a run too long for one batch
+AUTO_CHUNK_S = 3600.0
+#: with ``auto``, a run of at most this many keyframes and :data:`AUTO_ONE_BATCH_MAX_S` is one
+#: batch (the keyframes an hour and 600 s of 0.1 s keyframes always were): a run's memory grows
+#: with its keyframes; 2 h of 0.2 s keyframes at 500 Hz (34 401) peaked at 3.5 GB for the process
+#: and its forked children, where the 10 h survey in 6 600 s chunks took 4.2 GB (docs/long_runs.md)
+AUTO_ONE_BATCH_KEYFRAMES = 42_000
+#: the longest run [s] that ``auto`` solves as one batch
+AUTO_ONE_BATCH_MAX_S = 7200.0
+
 
 class SmootherSettings(StrictModel):
     """Gauss-Newton iterations (stop when the cost falls by less than ``relative_tolerance``)
@@ -232,7 +242,9 @@ class SmootherSettings(StrictModel):
 
     ``chunk_s`` / ``overlap_s``: runs longer than ``chunk_s + overlap_s`` are smoothed in
     overlapping chunks (fusion/chunks.py), so memory is bounded by the chunk; ``chunk_s: null``
-    solves any run as one batch (memory grows with its length: about 1.5 GB an hour at 500 Hz).
+    solves any run as one batch (memory grows with its keyframes: about 1.7 GB an hour of 0.2 s
+    keyframes at 500 Hz). ``auto`` (the default): a run of up to 2 h is one batch where its
+    keyframes allow (:meth:`one_batch_up_to_s`), a longer one goes in chunks of an hour.
     ``overlap_s`` null: :data:`CHUNK_OVERLAP_S`, at most half the chunk (:attr:`chunk_overlap_s`).
 
     ``workers``: with ``part_s``, the local processes the parts of each step are solved in
@@ -260,7 +272,7 @@ class SmootherSettings(StrictModel):
     relative_tolerance: float = Field(1e-7, gt=0)
     step_tolerance_mm: float = Field(0.02, ge=0)
     marginal_step_s: float = Field(1.0, gt=0)
-    chunk_s: float | None = Field(3600.0, ge=60.0)
+    chunk_s: float | Literal["auto"] | None = "auto"
     overlap_s: float | None = Field(None, gt=0)
     workers: int | None = Field(None, ge=1, le=16)
     part_s: float | None = Field(None, ge=10.0)
@@ -279,15 +291,45 @@ class SmootherSettings(StrictModel):
         return self
 
     @property
+    def chunk_length_s(self) -> float | None:
+        """The chunk [s] of a run smoothed in chunks: ``chunk_s``, :data:`AUTO_CHUNK_S` for ``auto``;
+        None: every run is one batch."""
+        return AUTO_CHUNK_S if self.chunk_s == "auto" else self.chunk_s
+
+    @property
     def chunk_overlap_s(self) -> float:
         """The data [s] a chunk is solved with beyond its join: ``overlap_s``, else
         :data:`CHUNK_OVERLAP_S` or half the chunk when that is shorter."""
         if self.overlap_s is not None:
             return self.overlap_s
-        return min(CHUNK_OVERLAP_S, 0.5 * self.chunk_s) if self.chunk_s is not None else CHUNK_OVERLAP_S
+        length = self.chunk_length_s
+        return min(CHUNK_OVERLAP_S, 0.5 * length) if length is not None else CHUNK_OVERLAP_S
+
+    def one_batch_up_to_s(self, spacing_s: float) -> float | None:
+        """The longest run [s] smoothed as one batch with keyframes ``spacing_s`` [s] apart; None:
+        any. A written ``chunk_s``: the chunk and its overlap. ``auto``: that much with
+        :data:`AUTO_CHUNK_S`, or :data:`AUTO_ONE_BATCH_KEYFRAMES` keyframes up to
+        :data:`AUTO_ONE_BATCH_MAX_S` when longer (2 h of 0.2 s keyframes, 70 min of 0.1 s ones)."""
+        length = self.chunk_length_s
+        if length is None:
+            return None
+        written = length + self.chunk_overlap_s
+        if self.chunk_s != "auto":
+            return written
+        return max(written, min(AUTO_ONE_BATCH_MAX_S, AUTO_ONE_BATCH_KEYFRAMES * spacing_s))
+
+    @field_validator("chunk_s", mode="before")
+    @classmethod
+    def _chunk_length(cls, value: Any) -> Any:
+        if value is None or value == "auto":
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 60.0 <= value < np.inf:
+            raise ValueError("a duration of at least 60 s, auto or null")
+        return value
 
     @model_validator(mode="after")
     def _overlap_inside_chunk(self) -> "SmootherSettings":
-        if self.chunk_s is not None and self.chunk_overlap_s >= self.chunk_s:
-            raise ValueError(f"overlap_s ({self.chunk_overlap_s:g}) must be shorter than chunk_s ({self.chunk_s:g})")
+        length = self.chunk_length_s
+        if length is not None and self.chunk_overlap_s >= length:
+            raise ValueError(f"overlap_s ({self.chunk_overlap_s:g}) must be shorter than the chunk ({length:g} s)")
         return self
