@@ -40,3 +40,25 @@ def test_a_written_chunk_keeps_its_meaning(written, up_to_s):
 def test_bad_chunks_are_refused(written):
     with pytest.raises(ValueError):
         SmootherSettings(**written)
+
+
+@pytest.mark.parametrize("spacing_s, duration_s, chunked", [(0.2, 7100.0, False), (0.2, 7300.0, True),
+                                                            (0.1, 4100.0, False), (0.1, 4300.0, True)])
+def test_the_run_decides_by_its_keyframes(tmp_path, spacing_s, duration_s, chunked):
+    """The pipeline's decision (``pipeline._in_chunks``) takes the keyframe spacing it was given; a
+    total-station run too long for one batch is refused in one line naming the key."""
+    from types import SimpleNamespace
+
+    from trackfusion.errors import ConfigError
+    from trackfusion.pipeline import _in_chunks, parse_pipeline
+    data = {"name": "t", "inputs": {"log": "log.mcap"}, "keyframes": {"spacing_s": spacing_s},
+            "trolley": {"wheelbase_m": 1.2, "lever_arm_imu_v_m": [0.0, -0.7, 0.25]},
+            "sensors": {"imu": {"grade": "navigation"}}, "factors": {"gnss": False}}
+    (tmp_path / "log.mcap").write_bytes(b"")
+    pipeline = parse_pipeline(data, "p.yaml", tmp_path)
+    assert _in_chunks(pipeline, SimpleNamespace(prisms=None), duration_s) is chunked
+    if chunked:
+        with pytest.raises(ConfigError, match="smoother.chunk_s: total-station runs"):
+            _in_chunks(pipeline, SimpleNamespace(prisms=object()), duration_s)
+    else:
+        assert _in_chunks(pipeline, SimpleNamespace(prisms=object()), duration_s) is False
