@@ -57,6 +57,14 @@ def _joins(tab):
 def test_chunked_run_has_the_joins_and_the_same_rows(runs):
     _, batch, chunked = runs
     assert _joins(chunked.trajectory).size == 3
+    # metrics.json and the report say how each run was smoothed
+    sm = chunked.metrics["smoothing"]
+    assert not sm["one_batch"] and (sm["chunk_length_s"], sm["overlap_s"]) == (CHUNK_S, OVERLAP_S)
+    np.testing.assert_array_equal(sm["joins_s"], _joins(chunked.trajectory))
+    assert batch.metrics["smoothing"] == {"one_batch": True, "chunk_s": None, "one_batch_up_to_s": None}
+    minutes = ", ".join(f"{(t - sm['start_s']) / 60:.1f}" for t in sm["joins_s"])
+    assert f"in 4 chunks of {CHUNK_S:.0f} s with {OVERLAP_S:.0f} s overlap" in (chunked.out_dir / "report.html").read_text()
+    assert f"joined {minutes} min after the start" in (chunked.out_dir / "report.html").read_text()
     assert chunked.metrics["factors"]["hand_over"] == 2 * 3
     np.testing.assert_array_equal(batch.trajectory["t_s"], chunked.trajectory["t_s"])
 

@@ -685,7 +685,7 @@ def _run(pipeline: Pipeline, folder, progress: Callable[[str], None] | None = No
     imu_rate = 1.0 / np.median(np.diff(problem.imu.t_s))
     every = _decimation(imu_rate, cfg.outputs.trajectory_rate_hz)
     duration_s = float(problem.imu.t_s[-1] - problem.imu.t_s[0])
-    chunked = _in_chunks(pipeline, problem, duration_s)
+    chunked = _in_chunks(pipeline, problem, duration_s, info)
     with folder.staging() as stage, ForkedTasks() as background:  # background: outputs written in forked children
         raw_copy = start_raw_copy(background, stage, log, cfg) if not chunked else None  # (report/outputs.py)
         with _trajectory_writer(stage / "trajectory.csv", problem.origin, cfg) as writer:
@@ -754,9 +754,10 @@ class _Smoothed:
             self.kept.release()  # the geometry's rows, read back for it
 
 
-def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float) -> bool:
+def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float, info: dict | None = None) -> bool:
     """Whether the run is smoothed in chunks (``smoother.chunk_s``: longer than
-    ``SmootherSettings.one_batch_up_to_s``); a total-station run too long for one batch is refused."""
+    ``SmootherSettings.one_batch_up_to_s``), said in ``info["smoothing"]`` (metrics.json's,
+    :func:`_smoothing_metrics`); a total-station run too long for one batch is refused."""
     cfg = pipeline.config
     limit_s = cfg.smoother.one_batch_up_to_s(cfg.keyframes.spacing_s)
     chunked = limit_s is not None and duration_s > limit_s
@@ -764,7 +765,23 @@ def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float) ->
         raise ConfigError(f"{pipeline.source}: smoother.chunk_s: total-station runs are smoothed in one "
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
                           f"{np.ceil(duration_s):.0f} (or null)")
+    if info is not None:
+        info["smoothing"] = _smoothing_metrics(cfg, problem.imu.t_s, chunked)
     return chunked
+
+
+def _smoothing_metrics(cfg: PipelineConfig, t_s: np.ndarray, chunked: bool) -> dict[str, Any]:
+    """metrics.json's ``smoothing``: whether the run of IMU times ``t_s`` (N,) [s] was one batch, the
+    longest run that would be (``one_batch_up_to_s`` [s], None: any) and, in chunks, the chunk and
+    overlap [s], the first IMU time ``start_s`` and the join times ``joins_s`` [s] (IMU clock)."""
+    sm = cfg.smoother
+    out: dict[str, Any] = {"one_batch": not chunked, "chunk_s": sm.chunk_s,
+                           "one_batch_up_to_s": sm.one_batch_up_to_s(cfg.keyframes.spacing_s)}
+    if chunked:
+        from .fusion.chunks import join_times
+        out.update(chunk_length_s=sm.chunk_length_s, overlap_s=sm.chunk_overlap_s, start_s=float(t_s[0]),
+                   joins_s=join_times(float(t_s[0]), float(t_s[-1]), sm.chunk_length_s, sm.chunk_overlap_s).tolist())
+    return out
 
 
 def _with_spilled_imu(problem: FusionProblem, log: SensorLog, stage: Path):

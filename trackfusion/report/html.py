@@ -187,6 +187,20 @@ def _flatten(d: dict, prefix: str = "") -> list[tuple[str, Any]]:
 
 # --- sections ------------------------------------------------------------------------------------------
 
+def _smoothed(smoothing: dict | None) -> str | None:
+    """The summary's line of metrics.json ``smoothing``: one batch, or the chunks and their joins
+    [min after the first IMU sample]; None for a run written before it."""
+    if not smoothing:
+        return None
+    limit = smoothing.get("one_batch_up_to_s")
+    if smoothing["one_batch"]:
+        return "one batch" + (f" (up to {limit:.0f} s: smoother.chunk_s)" if limit is not None else "")
+    joins = smoothing["joins_s"]
+    return (f"in {len(joins) + 1} chunks of {smoothing['chunk_length_s']:.0f} s with {smoothing['overlap_s']:.0f} s "
+            f"overlap (longer than {limit:.0f} s: smoother.chunk_s), joined "
+            + ", ".join(f"{(t - smoothing['start_s']) / 60.0:.1f}" for t in joins) + " min after the start")
+
+
 def _sensors(config: dict, metrics: dict) -> list[str]:
     sensors = config.get("sensors", {})
     factors = config.get("factors", {})
@@ -220,6 +234,7 @@ def summary_section(run: RunFiles) -> str:
         ("IMU samples", m.get("imu_samples")),
         ("keyframes / factors / iterations",
          f"{m.get('keyframes', '?')} / {sum(m.get('factors', {}).values())} / {m.get('iterations', '?')}"),
+        ("smoothed", _smoothed(m.get("smoothing"))),
         ("run time", f"{m['run_time_s']:.1f} s" if "run_time_s" in m else None),
         ("output folder", str((run.shown_dir or run.run_dir).resolve())),
     ]
