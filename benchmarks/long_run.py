@@ -26,9 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import yaml
-
-from provenance import git_commit
+from provenance import git_commit, pipeline_variant
 
 RESULTS = Path(__file__).resolve().parent / "results" / "long_run.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
@@ -84,13 +82,9 @@ def child(code: str, *args: str, tree_pss: bool = False) -> dict:
 
 
 def measure(sim: Path, chunk_s: float | None, overlap_s: float) -> dict:
-    data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-    data["inputs"].pop("reference", None)
-    data.setdefault("smoother", {}).update(chunk_s=chunk_s, overlap_s=overlap_s)
-    data.setdefault("outputs", {})["fused_mcap"] = False
     label = "batch" if chunk_s is None else f"chunk{chunk_s:g}"
-    path = sim / f"pipeline-{label}.yaml"
-    path.write_text(yaml.safe_dump(data))
+    path = pipeline_variant(sim, label, {"smoother": {"chunk_s": chunk_s, "overlap_s": overlap_s},
+                                         "outputs": {"fused_mcap": False}}, drop_reference=True)
     return child(_CHILD_RUN, str(path), str(sim / f"out-{label}"), tree_pss=True)
 
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from chunk_seams import errors_of, join_masks, pairs, rms_by_mask
 from long_run import _PEAK, child
-from provenance import git_commit
+from provenance import git_commit, pipeline_variant
 
 RESULTS = Path(__file__).resolve().parent / "results" / "long_surveys.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
@@ -68,13 +68,9 @@ KINDS = {"one batch": (None, "out-long-batch"), "chunks of an hour": (3600.0, "o
 def run_survey(sim: Path, kind: str = "default") -> dict:
     """``trackfusion run`` of ``sim``'s pipeline.yaml in a fresh process (its figures as JSON);
     another ``kind`` (:data:`KINDS`): with its ``smoother.chunk_s``."""
-    import yaml
     pipeline = sim / "pipeline.yaml"
     if kind != "default":
-        data = yaml.safe_load(pipeline.read_text())
-        data.setdefault("smoother", {})["chunk_s"] = KINDS[kind][0]
-        pipeline = sim / f"pipeline-{_out_dir(kind)}.yaml"
-        pipeline.write_text(yaml.safe_dump(data))
+        pipeline = pipeline_variant(sim, _out_dir(kind), {"smoother": {"chunk_s": KINDS[kind][0]}})
     return child(_CHILD, str(pipeline), str(sim / _out_dir(kind)))
 
 

@@ -27,7 +27,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from provenance import git_commit
+import yaml
+
+from provenance import git_commit, pipeline_variant, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed.json"
 CACHE = Path(tempfile.gettempdir()) / "trackfusion-bench"
@@ -98,17 +100,6 @@ def _run(pipeline: Path, out: Path, sampled: bool) -> dict:
             "metrics": json.loads((out / "metrics.json").read_text())}
 
 
-def _with_chunk(sim: Path, chunk_s: str) -> Path:
-    """A copy of ``sim``'s pipeline.yaml beside it with ``smoother.chunk_s`` set (``chunk_s``: seconds,
-    ``auto`` or ``null``)."""
-    import yaml
-    data = yaml.safe_load((sim / "pipeline.yaml").read_text())
-    data.setdefault("smoother", {})["chunk_s"] = yaml.safe_load(chunk_s)
-    path = sim / f"pipeline-chunk-{chunk_s}.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--passes", type=int, default=4, help="round trips (4: about 57 min)")
@@ -118,7 +109,8 @@ def main() -> None:
     ap.add_argument("--chunk-s", help="smoother.chunk_s for the run (seconds, auto or null; default: the pipeline's)")
     args = ap.parse_args()
     sim = simulated(args.passes)
-    pipeline = sim / "pipeline.yaml" if args.chunk_s is None else _with_chunk(sim, args.chunk_s)
+    pipeline = sim / "pipeline.yaml" if args.chunk_s is None else \
+        pipeline_variant(sim, f"chunk-{args.chunk_s}", {"smoother": {"chunk_s": yaml.safe_load(args.chunk_s)}})
     out = args.out or sim / "out-speed"
     runs = sorted((_run(pipeline, out, sampled=False) for _ in range(max(1, args.runs))), key=lambda r: r["wall_s"])
     median = runs[len(runs) // 2]
@@ -141,15 +133,13 @@ def main() -> None:
         "load_average_1min": float(Path("/proc/loadavg").read_text().split()[0]),
         "targets": {"wall_s": 60.0, "samples_per_s": 30000, "peak_rss_mb": 4096},
     }
-    args.results.parent.mkdir(exist_ok=True)
-    args.results.write_text(json.dumps(result, indent=2) + "\n")
     print(f"{samples} IMU samples ({result['duration_min']:.1f} min at 500 Hz), {metrics['keyframes']} keyframes")
     print(f"wall {wall:.1f} s, the median of {len(runs)} runs ({runs[0]['wall_s']:.1f}-{runs[-1]['wall_s']:.1f} s; "
           f"target < 60 s), {samples / wall:.0f} samples/s (target >= 30000), CPU {median['cpu_s']:.1f} s (all "
           f"processes), peak memory {result['peak_rss_mb']:.0f} MB (target < 4096 MB); with its worker processes "
           f"{tree_pss_mb:.0f} MB (PSS)")
     print("where the time goes: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in metrics["timings_s"].items()))
-    print(f"wrote {args.results}")
+    write_result(args.results, result)
 
 
 if __name__ == "__main__":

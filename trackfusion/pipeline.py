@@ -766,17 +766,16 @@ def _in_chunks(pipeline: Pipeline, problem: FusionProblem, duration_s: float, in
                           f"batch, and this run lasts {duration_s:.0f} s; set smoother.chunk_s to at least "
                           f"{np.ceil(duration_s):.0f} (or null)")
     if info is not None:
-        info["smoothing"] = _smoothing_metrics(cfg, problem.imu.t_s, chunked)
+        info["smoothing"] = _smoothing_metrics(cfg.smoother, problem.imu.t_s, limit_s, chunked)
     return chunked
 
 
-def _smoothing_metrics(cfg: PipelineConfig, t_s: np.ndarray, chunked: bool) -> dict[str, Any]:
+def _smoothing_metrics(sm: SmootherSettings, t_s: np.ndarray, limit_s: float | None, chunked: bool
+                       ) -> dict[str, Any]:
     """metrics.json's ``smoothing``: whether the run of IMU times ``t_s`` (N,) [s] was one batch, the
-    longest run that would be (``one_batch_up_to_s`` [s], None: any) and, in chunks, the chunk and
-    overlap [s], the first IMU time ``start_s`` and the join times ``joins_s`` [s] (IMU clock)."""
-    sm = cfg.smoother
-    out: dict[str, Any] = {"one_batch": not chunked, "chunk_s": sm.chunk_s,
-                           "one_batch_up_to_s": sm.one_batch_up_to_s(cfg.keyframes.spacing_s)}
+    longest run that would be (``limit_s`` [s], ``one_batch_up_to_s``; None: any) and, in chunks, the
+    chunk and overlap [s], the first IMU time ``start_s`` and the join times ``joins_s`` [s] (IMU clock)."""
+    out: dict[str, Any] = {"one_batch": not chunked, "chunk_s": sm.chunk_s, "one_batch_up_to_s": limit_s}
     if chunked:
         from .fusion.chunks import join_times
         out.update(chunk_length_s=sm.chunk_length_s, overlap_s=sm.chunk_overlap_s, start_s=float(t_s[0]),
